@@ -1,0 +1,8 @@
+//! `dsmstream demo` (in progress).
+
+#[derive(clap::Args, Debug)]
+pub struct Args {}
+
+pub fn run(_args: Args) -> anyhow::Result<()> {
+    anyhow::bail!("`demo` is not built yet")
+}

@@ -1,0 +1,8 @@
+//! `dsmstream fuse` (in progress).
+
+#[derive(clap::Args, Debug)]
+pub struct Args {}
+
+pub fn run(_args: Args) -> anyhow::Result<()> {
+    anyhow::bail!("`fuse` is not built yet")
+}

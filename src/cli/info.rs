@@ -1,0 +1,8 @@
+//! `dsmstream info` (in progress).
+
+#[derive(clap::Args, Debug)]
+pub struct Args {}
+
+pub fn run(_args: Args) -> anyhow::Result<()> {
+    anyhow::bail!("`info` is not built yet")
+}

@@ -1,0 +1,8 @@
+//! `dsmstream ingest` (in progress).
+
+#[derive(clap::Args, Debug)]
+pub struct Args {}
+
+pub fn run(_args: Args) -> anyhow::Result<()> {
+    anyhow::bail!("`ingest` is not built yet")
+}

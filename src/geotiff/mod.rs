@@ -1,0 +1,1 @@
+//! GeoTIFF reading and writing in pure Rust (in progress).
