@@ -1,1 +1,6 @@
-//! GeoTIFF reading and writing in pure Rust (in progress).
+//! GeoTIFF in pure Rust: a streaming reader (strips or tiles, one block row at
+//! a time) and a tiled, Cloud-Optimized writer. No GDAL dependency.
+
+pub mod geokeys;
+pub mod reader;
+pub mod writer;

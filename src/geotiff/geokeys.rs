@@ -1,0 +1,1 @@
+//! GeoKeyDirectory parsing and writing (in progress).

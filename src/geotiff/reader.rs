@@ -1,0 +1,1 @@
+//! Streaming GeoTIFF reader (in progress).

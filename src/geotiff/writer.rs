@@ -1,0 +1,1 @@
+//! Tiled Cloud-Optimized GeoTIFF writer (in progress).
