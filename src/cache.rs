@@ -170,8 +170,7 @@ impl ChunkCache {
                     )
                     .is_ok()
                 {
-                    self.peak_bytes
-                        .fetch_max(current + bytes, Ordering::AcqRel);
+                    self.peak_bytes.fetch_max(current + bytes, Ordering::AcqRel);
                     return true;
                 }
                 continue;
@@ -379,10 +378,19 @@ mod tests {
                 s.spawn(move || {
                     for n in 0..2000u32 {
                         let i = (n * 31 + t * 17) % 50;
-                        let k = ChunkKey { dsm: 0, level: 0, chunk_y: i, chunk_x: 0 };
+                        let k = ChunkKey {
+                            dsm: 0,
+                            level: 0,
+                            chunk_y: i,
+                            chunk_x: 0,
+                        };
                         let c = cache
                             .get_or_load(k, || -> Result<Chunk, ()> {
-                                Ok(Chunk { width: 8, height: 8, data: vec![i as f32; 64] })
+                                Ok(Chunk {
+                                    width: 8,
+                                    height: 8,
+                                    data: vec![i as f32; 64],
+                                })
                             })
                             .unwrap();
                         assert!(c.data.iter().all(|&v| v == i as f32));
