@@ -413,3 +413,56 @@ fn store_grid_records_read_errors() {
     assert!(err.contains("chunk (1, 1)"), "{err}");
     assert!(grid.take_error().is_none());
 }
+
+/// Not a unit test: builds a store from raw float32 rasters so that
+/// `tools/check_zarr.py` can be run against GeoTIFFs before the GeoTIFF reader
+/// is in this branch. `DSMSTREAM_RAW_DIR` holds `<id>.tif` (the source for
+/// rasterio), `<id>.f32` (its pixels as the reader would return them) and
+/// `<id>.json` ({width, height, geotransform, epsg, nodata, dtype});
+/// the store is written to `DSMSTREAM_RAW_STORE`.
+#[test]
+#[ignore]
+fn store_from_raw_rasters_for_check_zarr() {
+    let dir = PathBuf::from(std::env::var("DSMSTREAM_RAW_DIR").expect("DSMSTREAM_RAW_DIR"));
+    let store = PathBuf::from(std::env::var("DSMSTREAM_RAW_STORE").expect("DSMSTREAM_RAW_STORE"));
+    let chunk: u64 = std::env::var("DSMSTREAM_RAW_CHUNK")
+        .map(|c| c.parse().unwrap())
+        .unwrap_or(512);
+    let mut inputs = Inputs {
+        dir: tempfile::tempdir().unwrap(),
+        rasters: HashMap::new(),
+    };
+    let mut tifs = Vec::new();
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let json_path = entry.unwrap().path();
+        if json_path.extension().is_none_or(|e| e != "json") {
+            continue;
+        }
+        let j: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&json_path).unwrap()).unwrap();
+        let tif = std::fs::canonicalize(json_path.with_extension("tif")).unwrap();
+        let bytes = std::fs::read(json_path.with_extension("f32")).unwrap();
+        let data: Vec<f32> = bytes
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes(b.try_into().unwrap()))
+            .collect();
+        let gt: Vec<f64> = serde_json::from_value(j["geotransform"].clone()).unwrap();
+        let raster = SourceRaster {
+            path: tif.clone(),
+            width: j["width"].as_u64().unwrap(),
+            height: j["height"].as_u64().unwrap(),
+            geotransform: GeoTransform(gt.try_into().unwrap()),
+            crs: utm(j["epsg"].as_u64().unwrap() as u32),
+            nodata: j["nodata"].as_f64(),
+            dtype: j["dtype"].as_str().unwrap().into(),
+        };
+        inputs
+            .rasters
+            .insert(tif.clone(), MemSource { raster, data });
+        tifs.push(tif);
+    }
+    let mut opts = options(chunk);
+    opts.storage.min_overview_px = 256;
+    let actions = run(&inputs, &tifs, &store, &opts).unwrap();
+    eprintln!("{actions:?}");
+}
