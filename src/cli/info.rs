@@ -1,8 +1,113 @@
-//! `dsmstream info` (in progress).
+//! `dsmstream info`: the catalog of a store as a table (or JSON): size, GSD,
+//! CRS, valid fraction, heights, chunking, levels, and how many other DSMs
+//! each footprint overlaps.
+
+use std::path::PathBuf;
+
+use dsmstream::store::{DsmMeta, Store};
+use dsmstream::InputError;
 
 #[derive(clap::Args, Debug)]
-pub struct Args {}
+pub struct Args {
+    /// The store directory (made by `dsmstream ingest`).
+    pub store: PathBuf,
+    /// Print the full catalog as JSON instead of a table.
+    #[arg(long)]
+    pub json: bool,
+}
 
-pub fn run(_args: Args) -> anyhow::Result<()> {
-    anyhow::bail!("`info` is not built yet")
+/// True when the two footprints share a region of positive area.
+fn overlaps(a: &[f64; 4], b: &[f64; 4]) -> bool {
+    a[0] < b[2] && b[0] < a[2] && a[1] < b[3] && b[1] < a[3]
+}
+
+/// Pairs (i, j), i < j, whose footprints overlap (O(N^2), fine for a catalog).
+fn overlapping_pairs(dsms: &[DsmMeta]) -> Vec<(usize, usize)> {
+    let mut pairs = Vec::new();
+    for i in 0..dsms.len() {
+        for j in i + 1..dsms.len() {
+            if overlaps(&dsms[i].footprint, &dsms[j].footprint) {
+                pairs.push((i, j));
+            }
+        }
+    }
+    pairs
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let store = Store::open(&args.store).map_err(|e| {
+        if e.is_bad_input() {
+            anyhow::Error::new(InputError::new(e.to_string()))
+        } else {
+            anyhow::Error::new(e)
+        }
+    })?;
+    let dsms = store.dsms();
+    let pairs = overlapping_pairs(dsms);
+    let crs = store
+        .crs()
+        .map(|c| c.label())
+        .unwrap_or_else(|| "none".into());
+    if args.json {
+        let doc = serde_json::json!({
+            "store": store.root().display().to_string(),
+            "crs": crs,
+            "dsms": dsms,
+            "overlapping_pairs": pairs.iter().map(|&(i, j)| [&dsms[i].id, &dsms[j].id]).collect::<Vec<_>>(),
+        });
+        println!("{}", serde_json::to_string_pretty(&doc)?);
+        return Ok(());
+    }
+    let mut per_dsm = vec![0usize; dsms.len()];
+    for &(i, j) in &pairs {
+        per_dsm[i] += 1;
+        per_dsm[j] += 1;
+    }
+    let id_w = dsms.iter().map(|d| d.id.len()).max().unwrap_or(2).max(2);
+    println!(
+        "{:<id_w$}  {:>13}  {:>7}  {:<12}  {:>7}  {:>21}  {:>5}  {:>6}  {:>8}",
+        "id",
+        "size (px)",
+        "GSD (m)",
+        "CRS",
+        "valid %",
+        "height min..max (m)",
+        "chunk",
+        "levels",
+        "overlaps"
+    );
+    for (d, n) in dsms.iter().zip(&per_dsm) {
+        let chunk = d.levels.first().map(|l| l.chunk).unwrap_or(0);
+        println!(
+            "{:<id_w$}  {:>13}  {:>7.3}  {:<12}  {:>7.1}  {:>21}  {:>5}  {:>6}  {:>8}",
+            d.id,
+            format!("{} x {}", d.width, d.height),
+            d.gsd_m(),
+            d.crs.label(),
+            100.0 * d.valid_fraction(),
+            format!("{:.2} .. {:.2}", d.height_stats.min, d.height_stats.max),
+            chunk,
+            d.levels.len(),
+            n
+        );
+    }
+    println!(
+        "{} DSMs, CRS {crs}, {} overlapping footprint pairs",
+        dsms.len(),
+        pairs.len()
+    );
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::overlaps;
+
+    #[test]
+    fn touching_footprints_do_not_overlap() {
+        let a = [0.0, 0.0, 10.0, 10.0];
+        assert!(overlaps(&a, &[5.0, 5.0, 15.0, 15.0]));
+        assert!(!overlaps(&a, &[10.0, 0.0, 20.0, 10.0]));
+        assert!(!overlaps(&a, &[0.0, 11.0, 10.0, 20.0]));
+    }
 }

@@ -1,0 +1,304 @@
+//! The file-system side of ingest: expanding inputs into (id, path), stating
+//! sources, committing a finished DSM group by rename, and repairing what a
+//! killed run left behind.
+//!
+//! A DSM is written as `<id>.tmp-<pid>/` and renamed to `<id>/` when complete;
+//! a replaced one is first moved aside to `<id>.old-<pid>/`. On the next run,
+//! temporaries of dead processes are deleted, a moved-aside group whose
+//! replacement never arrived is moved back, and a complete group missing from
+//! the root catalog (killed between rename and catalog update) is adopted.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::time::UNIX_EPOCH;
+
+use super::catalog::{self, RootAttrs, SourceInfo};
+use super::StoreError;
+
+pub const TMP_TAG: &str = ".tmp-";
+pub const OLD_TAG: &str = ".old-";
+
+/// One input file and the DSM id it becomes.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct InputFile {
+    pub id: String,
+    /// Absolute (canonical) path.
+    pub path: PathBuf,
+}
+
+/// Files named on the command line plus the `*.tif` / `*.tiff` files directly
+/// inside named directories (sorted). Errors are one line naming the path.
+pub fn expand_inputs(inputs: &[PathBuf]) -> Result<Vec<InputFile>, String> {
+    let mut files = Vec::new();
+    for input in inputs {
+        let meta = std::fs::metadata(input).map_err(|e| format!("{}: {e}", input.display()))?;
+        if meta.is_dir() {
+            let mut found: Vec<PathBuf> = std::fs::read_dir(input)
+                .map_err(|e| format!("{}: {e}", input.display()))?
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| p.is_file() && is_tiff_name(p))
+                .collect();
+            if found.is_empty() {
+                return Err(format!(
+                    "{}: no .tif or .tiff files in this directory",
+                    input.display()
+                ));
+            }
+            found.sort();
+            files.extend(found);
+        } else {
+            files.push(input.clone());
+        }
+    }
+    let mut seen: HashMap<String, PathBuf> = HashMap::new();
+    let mut out = Vec::with_capacity(files.len());
+    for file in files {
+        let path = std::fs::canonicalize(&file).map_err(|e| format!("{}: {e}", file.display()))?;
+        let id = file
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        check_id(&id, &file)?;
+        if let Some(other) = seen.get(&id) {
+            if *other == path {
+                continue; // the same file named twice
+            }
+            return Err(format!(
+                "{} and {} have the same stem \"{id}\" (DSM ids must be unique); rename one",
+                other.display(),
+                path.display()
+            ));
+        }
+        seen.insert(id.clone(), path.clone());
+        out.push(InputFile { id, path });
+    }
+    Ok(out)
+}
+
+fn is_tiff_name(p: &Path) -> bool {
+    p.extension()
+        .map(|e| e.eq_ignore_ascii_case("tif") || e.eq_ignore_ascii_case("tiff"))
+        .unwrap_or(false)
+}
+
+/// An id must be usable as a Zarr node name and not look like our temporaries.
+fn check_id(id: &str, file: &Path) -> Result<(), String> {
+    let bad = id.is_empty()
+        || id.starts_with("__")
+        || id.starts_with('.')
+        || id == "zarr.json"
+        || id.contains(TMP_TAG)
+        || id.contains(OLD_TAG);
+    if bad {
+        return Err(format!(
+            "{}: file stem \"{id}\" cannot be a DSM id (empty, starts with '.' or \"__\", or contains \"{TMP_TAG}\"/\"{OLD_TAG}\"); rename the file",
+            file.display()
+        ));
+    }
+    Ok(())
+}
+
+/// Path, size and mtime of a source file.
+pub fn source_info(path: &Path) -> Result<SourceInfo, StoreError> {
+    let meta = std::fs::metadata(path).map_err(|e| StoreError::io(path, e))?;
+    let mtime_unix_ns = meta
+        .modified()
+        .ok()
+        .and_then(|t| t.duration_since(UNIX_EPOCH).ok())
+        .map(|d| d.as_nanos() as i64)
+        .unwrap_or(0);
+    Ok(SourceInfo {
+        path: path.display().to_string(),
+        size: meta.len(),
+        mtime_unix_ns,
+    })
+}
+
+/// Total size of the files under `dir`.
+pub fn dir_bytes(dir: &Path) -> u64 {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return 0;
+    };
+    entries
+        .filter_map(Result::ok)
+        .map(|e| match e.file_type() {
+            Ok(t) if t.is_dir() => dir_bytes(&e.path()),
+            _ => e.metadata().map(|m| m.len()).unwrap_or(0),
+        })
+        .sum()
+}
+
+fn process_alive(pid: u32) -> bool {
+    pid == std::process::id() || Path::new(&format!("/proc/{pid}")).exists()
+}
+
+/// Names of the folders directly inside `dir`, sorted.
+fn subdirectories(dir: &Path) -> Result<Vec<String>, StoreError> {
+    let entries = std::fs::read_dir(dir).map_err(|e| StoreError::io(dir, e))?;
+    let mut names: Vec<String> = entries
+        .filter_map(Result::ok)
+        .filter(|e| e.file_type().map(|t| t.is_dir()).unwrap_or(false))
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    Ok(names)
+}
+
+/// Repair after a killed run (see the module doc); returns the updated catalog.
+pub fn recover(root: &Path, mut attrs: RootAttrs) -> Result<RootAttrs, StoreError> {
+    let mut changed = false;
+    for name in &subdirectories(root)? {
+        let path = root.join(name);
+        if let Some((id, pid)) = name.split_once(TMP_TAG) {
+            let pid: u32 = pid.parse().unwrap_or(0);
+            if pid != std::process::id() && process_alive(pid) {
+                continue; // another ingest is writing it
+            }
+            std::fs::remove_dir_all(&path).map_err(|e| StoreError::io(&path, e))?;
+            tracing::info!(dsm = id, path = %path.display(), "stale temporary removed");
+        } else if let Some((id, _)) = name.split_once(OLD_TAG) {
+            let live = root.join(id);
+            if live.join("zarr.json").is_file() {
+                std::fs::remove_dir_all(&path).map_err(|e| StoreError::io(&path, e))?;
+            } else {
+                if live.exists() {
+                    std::fs::remove_dir_all(&live).map_err(|e| StoreError::io(&live, e))?;
+                }
+                std::fs::rename(&path, &live).map_err(|e| StoreError::io(&live, e))?;
+                tracing::warn!(dsm = id, "interrupted replacement rolled back");
+            }
+        }
+    }
+    // Complete groups the catalog does not list yet (killed before the catalog write).
+    for name in subdirectories(root)?
+        .iter()
+        .filter(|n| !n.contains(TMP_TAG) && !n.contains(OLD_TAG))
+    {
+        if attrs.dsms.contains(name) {
+            continue;
+        }
+        let Ok(meta) = catalog::read_dsm(&root.join(name)) else {
+            continue;
+        };
+        let crs_ok = attrs.crs.as_ref().is_none_or(|c| c.same_as(&meta.crs));
+        if meta.id == *name && crs_ok {
+            attrs.crs.get_or_insert(meta.crs.clone());
+            attrs.dsms.push(name.clone());
+            changed = true;
+            tracing::warn!(dsm = %name, "uncatalogued DSM adopted");
+        }
+    }
+    if changed {
+        catalog::write_root(root, &attrs)?;
+    }
+    Ok(attrs)
+}
+
+/// Move a finished group `tmp` to `<root>/<id>` (replacing an existing one) and
+/// then record it in the root catalog.
+pub fn commit(
+    root: &Path,
+    attrs: &mut RootAttrs,
+    id: &str,
+    tmp: &Path,
+    crs: &crate::raster::Crs,
+) -> Result<(), StoreError> {
+    let live = root.join(id);
+    if live.exists() {
+        let old = root.join(format!("{id}{OLD_TAG}{}", std::process::id()));
+        std::fs::rename(&live, &old).map_err(|e| StoreError::io(&live, e))?;
+        std::fs::rename(tmp, &live).map_err(|e| StoreError::io(&live, e))?;
+        std::fs::remove_dir_all(&old).map_err(|e| StoreError::io(&old, e))?;
+    } else {
+        std::fs::rename(tmp, &live).map_err(|e| StoreError::io(&live, e))?;
+    }
+    if !attrs.dsms.iter().any(|d| d == id) {
+        attrs.dsms.push(id.to_string());
+    }
+    attrs.crs.get_or_insert_with(|| crs.clone());
+    catalog::write_root(root, attrs)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::store::catalog::{tests::sample_meta, write_group_attributes, STORE_VERSION};
+
+    #[test]
+    fn inputs_expand_sorted_and_reject_duplicate_stems() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        for name in ["b.tif", "a.TIFF", "notes.txt"] {
+            std::fs::write(d.join(name), b"x").unwrap();
+        }
+        std::fs::create_dir(d.join("sub")).unwrap();
+        std::fs::write(d.join("sub/a.tif"), b"x").unwrap();
+        let files = expand_inputs(&[d.to_path_buf()]).unwrap();
+        let ids: Vec<_> = files.iter().map(|f| f.id.as_str()).collect();
+        assert_eq!(ids, ["a", "b"]);
+        assert!(files[0].path.is_absolute());
+        let err = expand_inputs(&[d.to_path_buf(), d.join("sub/a.tif")]).unwrap_err();
+        assert!(err.contains("same stem \"a\""), "{err}");
+        let err = expand_inputs(&[d.join("missing.tif")]).unwrap_err();
+        assert!(err.contains("missing.tif"), "{err}");
+        let err = expand_inputs(&[d.join("sub"), d.join("notes.txt")]);
+        assert!(err.is_ok(), "a file named explicitly is taken as is");
+        std::fs::write(d.join("x.tmp-1.tif"), b"x").unwrap();
+        assert!(expand_inputs(&[d.join("x.tmp-1.tif")]).is_err());
+    }
+
+    #[test]
+    fn recover_removes_stale_temporaries_rolls_back_and_adopts() {
+        let dir = tempfile::tempdir().unwrap();
+        let root = dir.path();
+        let attrs = RootAttrs {
+            version: STORE_VERSION,
+            crs: None,
+            dsms: vec![],
+        };
+        catalog::write_root(root, &attrs).unwrap();
+        // A temporary of a dead process (pid 0 never exists as a directory in /proc).
+        std::fs::create_dir_all(root.join("a.tmp-0/0")).unwrap();
+        // A replacement interrupted after moving the old group aside.
+        std::fs::create_dir(root.join("b.old-0")).unwrap();
+        write_group_attributes(&root.join("b.old-0"), &sample_meta("b").to_attributes()).unwrap();
+        // A complete group renamed into place but never catalogued.
+        std::fs::create_dir(root.join("c")).unwrap();
+        write_group_attributes(&root.join("c"), &sample_meta("c").to_attributes()).unwrap();
+        let attrs = recover(root, attrs).unwrap();
+        assert!(!root.join("a.tmp-0").exists());
+        assert!(!root.join("b.old-0").exists());
+        assert!(root.join("b/zarr.json").is_file());
+        assert_eq!(attrs.dsms, ["b", "c"]);
+        assert_eq!(catalog::read_root(root).unwrap(), attrs);
+        assert!(attrs.crs.is_some());
+    }
+
+    #[test]
+    fn commit_replaces_an_existing_group() {
+        let dir = tempfile::tempdir().unwrap();
+        let root = dir.path();
+        let mut attrs = RootAttrs {
+            version: STORE_VERSION,
+            crs: None,
+            dsms: vec![],
+        };
+        let crs = sample_meta("a").crs;
+        for round in 0..2 {
+            let tmp = root.join("a.tmp-7");
+            std::fs::create_dir(&tmp).unwrap();
+            std::fs::write(tmp.join("marker"), format!("{round}")).unwrap();
+            commit(root, &mut attrs, "a", &tmp, &crs).unwrap();
+            assert_eq!(
+                std::fs::read_to_string(root.join("a/marker")).unwrap(),
+                format!("{round}")
+            );
+        }
+        assert_eq!(attrs.dsms, ["a"]);
+        let names: Vec<_> = std::fs::read_dir(root)
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(names.len(), 2, "a/ and zarr.json only: {names:?}");
+    }
+}

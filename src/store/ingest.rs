@@ -1,0 +1,412 @@
+//! Ingest: convert input rasters into the collection store, once.
+//!
+//! Steps: expand the inputs into (id, file); decide per file whether it is new,
+//! changed or unchanged (source size + mtime, skipped unless `force`); open and
+//! validate the headers of *every* file to ingest (size, metric CRS, same CRS
+//! as the collection, north-up) before writing anything; then stream each
+//! file, a chunk row at a time, into `<id>.tmp-<pid>/` (level 0 and overviews
+//! in one pass, see `pyramid`), rename it to `<id>/` and only then list it in
+//! the root catalog. A file that turns out to hold no valid pixel is refused
+//! when its pass ends; DSMs committed before it stay.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use zarrs::filesystem::FilesystemStore;
+
+use super::catalog::{self, DsmMeta, RootAttrs, StorageSettings, STORE_VERSION};
+use super::files::{self, InputFile, TMP_TAG};
+use super::pyramid::{level_shapes, PyramidWriter};
+use super::source::{open_geotiff, RowSource, SourceError, SourceOpener};
+use super::stats::HeightAccumulator;
+use super::StoreError;
+use crate::raster::Crs;
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct IngestOptions {
+    pub storage: StorageSettings,
+    /// Re-ingest DSMs whose source did not change (and replace same-id DSMs
+    /// that came from another file).
+    pub force: bool,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DsmAction {
+    /// New in the store.
+    Ingested,
+    /// Was in the store; source changed or `force`.
+    Replaced,
+    /// Was in the store with the same source size and mtime.
+    Skipped,
+}
+
+/// What happened to one input.
+#[derive(Clone, Debug)]
+pub struct DsmOutcome {
+    pub id: String,
+    pub path: PathBuf,
+    pub action: DsmAction,
+    pub width: u64,
+    pub height: u64,
+    pub levels: usize,
+    pub valid_count: u64,
+    /// Bytes of the DSM's group on disk.
+    pub stored_bytes: u64,
+    pub seconds: f64,
+}
+
+#[derive(Clone, Debug)]
+pub struct IngestReport {
+    pub store: PathBuf,
+    pub outcomes: Vec<DsmOutcome>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum IngestError {
+    /// A problem with an input file or the store path (exit code 2).
+    #[error("{0}")]
+    BadInput(String),
+    #[error(transparent)]
+    Store(#[from] StoreError),
+    /// Reading a source failed for a reason other than its content.
+    #[error("{0}")]
+    Source(SourceError),
+}
+
+impl IngestError {
+    pub fn is_bad_input(&self) -> bool {
+        matches!(self, IngestError::BadInput(_))
+    }
+}
+
+impl From<SourceError> for IngestError {
+    fn from(e: SourceError) -> Self {
+        if e.bad_input {
+            IngestError::BadInput(e.message)
+        } else {
+            IngestError::Source(e)
+        }
+    }
+}
+
+/// Progress callbacks (rows of level 0); every method defaults to nothing.
+pub trait IngestProgress {
+    fn dsm_started(&self, _id: &str, _rows_total: u64) {}
+    fn rows_done(&self, _rows: u64) {}
+    fn dsm_finished(&self, _outcome: &DsmOutcome) {}
+}
+
+/// No progress output.
+pub struct NoProgress;
+impl IngestProgress for NoProgress {}
+
+/// Ingest GeoTIFF files (or directories of them) into the store at `store_path`.
+pub fn ingest(
+    inputs: &[PathBuf],
+    store_path: &Path,
+    options: &IngestOptions,
+    progress: &dyn IngestProgress,
+) -> Result<IngestReport, IngestError> {
+    ingest_with(inputs, store_path, options, progress, &open_geotiff)
+}
+
+/// [`ingest`] with any source opener (tests use in-memory sources).
+pub fn ingest_with(
+    inputs: &[PathBuf],
+    store_path: &Path,
+    options: &IngestOptions,
+    progress: &dyn IngestProgress,
+    open: &SourceOpener,
+) -> Result<IngestReport, IngestError> {
+    check_options(&options.storage)?;
+    let files = files::expand_inputs(inputs).map_err(IngestError::BadInput)?;
+    let existing = read_existing(store_path)?;
+    let mut attrs = match existing {
+        Some(attrs) => files::recover(store_path, attrs)?,
+        None => RootAttrs {
+            version: STORE_VERSION,
+            crs: None,
+            dsms: Vec::new(),
+        },
+    };
+
+    // Plan: skip unchanged, validate every header before writing anything.
+    let mut outcomes = Vec::new();
+    let mut todo: Vec<(InputFile, DsmAction)> = Vec::new();
+    for file in files {
+        match plan_one(store_path, &attrs, &file, options.force)? {
+            DsmAction::Skipped => {
+                let meta = catalog::read_dsm(&store_path.join(&file.id))?;
+                let outcome = skipped_outcome(store_path, &file, &meta);
+                progress.dsm_finished(&outcome);
+                outcomes.push(outcome);
+            }
+            action => todo.push((file, action)),
+        }
+    }
+    let mut collection_crs: Option<(Crs, String)> = attrs
+        .crs
+        .clone()
+        .map(|c| (c, format!("the store {}", store_path.display())));
+    for (file, _) in &todo {
+        let source = open(&file.path)?;
+        validate(source.raster(), &file.path, &mut collection_crs)?;
+    }
+
+    if !todo.is_empty() {
+        create_store(store_path, &attrs)?;
+    }
+    let fs = Arc::new(
+        FilesystemStore::new(store_path).map_err(|e| StoreError::zarr(store_path.display(), e))?,
+    );
+    for (file, action) in todo {
+        let started = Instant::now();
+        let mut source = open(&file.path)?;
+        let meta = write_dsm(
+            &fs,
+            store_path,
+            &file,
+            source.as_mut(),
+            &options.storage,
+            progress,
+        )?;
+        let tmp = store_path.join(tmp_name(&file.id));
+        files::commit(store_path, &mut attrs, &file.id, &tmp, &meta.crs)?;
+        let outcome = DsmOutcome {
+            id: file.id.clone(),
+            path: file.path.clone(),
+            action,
+            width: meta.width,
+            height: meta.height,
+            levels: meta.levels.len(),
+            valid_count: meta.valid_count,
+            stored_bytes: files::dir_bytes(&store_path.join(&file.id)),
+            seconds: started.elapsed().as_secs_f64(),
+        };
+        tracing::info!(dsm = %file.id, seconds = outcome.seconds, "dsm ingested");
+        progress.dsm_finished(&outcome);
+        outcomes.push(outcome);
+    }
+    Ok(IngestReport {
+        store: store_path.to_path_buf(),
+        outcomes,
+    })
+}
+
+fn check_options(s: &StorageSettings) -> Result<(), IngestError> {
+    if !(16..=8192).contains(&s.chunk) {
+        return Err(IngestError::BadInput(format!(
+            "chunk size {} px is out of range (16 ..= 8192)",
+            s.chunk
+        )));
+    }
+    Ok(())
+}
+
+fn tmp_name(id: &str) -> String {
+    format!("{id}{TMP_TAG}{}", std::process::id())
+}
+
+/// The catalog of an existing store, None when the path does not exist yet
+/// (or is an empty directory).
+fn read_existing(store: &Path) -> Result<Option<RootAttrs>, IngestError> {
+    if store.join("zarr.json").exists() {
+        return catalog::read_root(store)
+            .map(Some)
+            .map_err(|e| IngestError::BadInput(e.to_string()));
+    }
+    match std::fs::read_dir(store) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+        Err(e) => Err(IngestError::BadInput(format!(
+            "{}: cannot use as a store: {e}",
+            store.display()
+        ))),
+        Ok(mut entries) => match entries.next() {
+            None => Ok(None),
+            Some(_) => Err(IngestError::BadInput(format!(
+                "{}: exists, is not empty and is not a dsmstream store (no zarr.json)",
+                store.display()
+            ))),
+        },
+    }
+}
+
+fn create_store(store: &Path, attrs: &RootAttrs) -> Result<(), IngestError> {
+    let cannot = |e: &dyn std::fmt::Display| {
+        IngestError::BadInput(format!("{}: cannot write the store: {e}", store.display()))
+    };
+    std::fs::create_dir_all(store).map_err(|e| cannot(&e))?;
+    if !store.join("zarr.json").exists() {
+        catalog::write_root(store, attrs).map_err(|e| cannot(&e))?;
+    }
+    Ok(())
+}
+
+/// New, changed, unchanged, or a clash with a same-id DSM from another file.
+fn plan_one(
+    store: &Path,
+    attrs: &RootAttrs,
+    file: &InputFile,
+    force: bool,
+) -> Result<DsmAction, IngestError> {
+    if !attrs.dsms.contains(&file.id) {
+        return Ok(DsmAction::Ingested);
+    }
+    let old = catalog::read_dsm(&store.join(&file.id))?;
+    if force {
+        return Ok(DsmAction::Replaced);
+    }
+    let now = files::source_info(&file.path)?;
+    if old.source.path != now.path {
+        return Err(IngestError::BadInput(format!(
+            "{}: DSM id \"{}\" is already in the store, from {}; rename the file or use --force to replace it",
+            file.path.display(),
+            file.id,
+            old.source.path
+        )));
+    }
+    if old.source == now {
+        Ok(DsmAction::Skipped)
+    } else {
+        tracing::info!(dsm = %file.id, "source changed");
+        Ok(DsmAction::Replaced)
+    }
+}
+
+fn skipped_outcome(store: &Path, file: &InputFile, meta: &DsmMeta) -> DsmOutcome {
+    DsmOutcome {
+        id: file.id.clone(),
+        path: file.path.clone(),
+        action: DsmAction::Skipped,
+        width: meta.width,
+        height: meta.height,
+        levels: meta.levels.len(),
+        valid_count: meta.valid_count,
+        stored_bytes: files::dir_bytes(&store.join(&file.id)),
+        seconds: 0.0,
+    }
+}
+
+/// Header checks; `collection` is the CRS every DSM must share and where it came from.
+fn validate(
+    raster: &super::source::SourceRaster,
+    path: &Path,
+    collection: &mut Option<(Crs, String)>,
+) -> Result<(), IngestError> {
+    let file = path.display();
+    let bad = |msg: String| Err(IngestError::BadInput(format!("{file}: {msg}")));
+    if raster.width == 0 || raster.height == 0 {
+        return bad(format!(
+            "empty raster ({} x {} px)",
+            raster.width, raster.height
+        ));
+    }
+    if raster.crs.is_geographic {
+        return bad(format!(
+            "geographic CRS {} (degrees) is not a metric frame; reproject to a projected CRS first, e.g. gdalwarp -t_srs EPSG:326xx",
+            raster.crs.label()
+        ));
+    }
+    if !raster.geotransform.is_north_up() {
+        return bad(format!(
+            "geotransform {:?} is rotated, sheared or not north-up; only north-up rasters are supported (gdalwarp can resample it)",
+            raster.geotransform.0
+        ));
+    }
+    match collection {
+        Some((crs, origin)) if !crs.same_as(&raster.crs) => bad(format!(
+            "CRS {} differs from the collection's CRS {} (from {origin}); reproject it to the same CRS",
+            raster.crs.label(),
+            crs.label()
+        )),
+        Some(_) => Ok(()),
+        None => {
+            *collection = Some((raster.crs.clone(), file.to_string()));
+            Ok(())
+        }
+    }
+}
+
+/// Stream one source into `<store>/<id>.tmp-<pid>/`, return its metadata.
+fn write_dsm(
+    fs: &Arc<FilesystemStore>,
+    store: &Path,
+    file: &InputFile,
+    source: &mut dyn RowSource,
+    settings: &StorageSettings,
+    progress: &dyn IngestProgress,
+) -> Result<DsmMeta, IngestError> {
+    let tmp = store.join(tmp_name(&file.id));
+    if tmp.exists() {
+        std::fs::remove_dir_all(&tmp).map_err(|e| StoreError::io(&tmp, e))?;
+    }
+    let result = write_levels(fs, &tmp, file, source, settings, progress);
+    if result.is_err() {
+        let _ = std::fs::remove_dir_all(&tmp);
+    }
+    result
+}
+
+fn write_levels(
+    fs: &Arc<FilesystemStore>,
+    tmp: &Path,
+    file: &InputFile,
+    source: &mut dyn RowSource,
+    settings: &StorageSettings,
+    progress: &dyn IngestProgress,
+) -> Result<DsmMeta, IngestError> {
+    let raster = source.raster().clone();
+    let (w, h) = (raster.width, raster.height);
+    let source_info = files::source_info(&file.path)?;
+    let shapes = level_shapes(w, h, settings);
+    let node = format!("/{}", tmp.file_name().unwrap_or_default().to_string_lossy());
+    let mut pyramid = PyramidWriter::create(fs.clone(), &node, &shapes, settings)?;
+    let mut acc = HeightAccumulator::default();
+    progress.dsm_started(&file.id, h);
+    let mut row0 = 0;
+    while row0 < h {
+        let rows = settings.chunk.min(h - row0);
+        let mut data = source.read_rows(row0, rows)?;
+        if data.len() as u64 != w * rows {
+            return Err(IngestError::Source(SourceError {
+                message: format!(
+                    "{}: read {} values for rows {row0}..{}, expected {}",
+                    file.path.display(),
+                    data.len(),
+                    row0 + rows,
+                    w * rows
+                ),
+                bad_input: false,
+            }));
+        }
+        acc.add_rows(&mut data, w as usize, row0);
+        pyramid.push_rows(&data)?;
+        progress.rows_done(rows);
+        row0 += rows;
+    }
+    pyramid.finish()?;
+    let Some(height_stats) = acc.height_stats() else {
+        return Err(IngestError::BadInput(format!(
+            "{}: no valid pixels (every pixel is no-data)",
+            file.path.display()
+        )));
+    };
+    let meta = DsmMeta {
+        id: file.id.clone(),
+        width: w,
+        height: h,
+        geotransform: raster.geotransform,
+        crs: raster.crs.clone(),
+        nodata: raster.nodata,
+        valid_count: acc.valid_count(),
+        height_stats,
+        footprint: acc.footprint(&raster.geotransform, w, h),
+        levels: shapes,
+        source: source_info,
+        source_dtype: raster.dtype.clone(),
+        storage: *settings,
+    };
+    catalog::write_group_attributes(tmp, &meta.to_attributes())?;
+    Ok(meta)
+}

@@ -1,0 +1,297 @@
+//! Streaming writer of one DSM's multiscale arrays: level 0 and its 2x
+//! overviews are built in a single top-to-bottom pass.
+//!
+//! Rows of level 0 arrive a block at a time. Each level buffers at most one
+//! chunk row of its own pixels; when the buffer is full it writes that chunk
+//! row (whole chunks, one rayon task per chunk: zarrs loses data when two
+//! partial writes hit one chunk) and hands the rows down, where they are
+//! averaged 2x2 (valid pixels only, NaN when none) into the next level. An odd
+//! row waits in `carry` for its partner. Memory: about one chunk row per level.
+
+use std::sync::Arc;
+
+use rayon::prelude::*;
+use zarrs::array::{codec::ZstdCodec, data_type, ArrayBuilder};
+use zarrs::filesystem::FilesystemStore;
+
+use super::catalog::{Compression, LevelMeta, StorageSettings};
+use super::{LevelArray, StoreError};
+
+/// Level shapes: level 0, then halved (rounding up) while the long side of the
+/// previous level is above `min_overview_px`.
+pub fn level_shapes(width: u64, height: u64, settings: &StorageSettings) -> Vec<LevelMeta> {
+    let mut levels = vec![LevelMeta {
+        width,
+        height,
+        chunk: settings.chunk,
+    }];
+    let (mut w, mut h) = (width, height);
+    while w.max(h) > settings.min_overview_px.max(1) {
+        w = w.div_ceil(2);
+        h = h.div_ceil(2);
+        levels.push(LevelMeta {
+            width: w,
+            height: h,
+            chunk: settings.chunk,
+        });
+    }
+    levels
+}
+
+/// Mean of the valid pixels of each 2x2 block of rows `a` and `b` (b = None for
+/// a last odd row); output width = ceil(width / 2).
+pub fn downsample_rows(a: &[f32], b: Option<&[f32]>, out: &mut Vec<f32>) {
+    let w = a.len();
+    for j in 0..w.div_ceil(2) {
+        let (mut sum, mut n) = (0.0f64, 0u32);
+        let mut add = |v: f32| {
+            if !v.is_nan() {
+                sum += v as f64;
+                n += 1;
+            }
+        };
+        add(a[2 * j]);
+        if 2 * j + 1 < w {
+            add(a[2 * j + 1]);
+        }
+        if let Some(b) = b {
+            add(b[2 * j]);
+            if 2 * j + 1 < w {
+                add(b[2 * j + 1]);
+            }
+        }
+        out.push(if n == 0 {
+            f32::NAN
+        } else {
+            (sum / n as f64) as f32
+        });
+    }
+}
+
+struct LevelWriter {
+    array: LevelArray,
+    node: String,
+    width: usize,
+    height: u64,
+    chunk: usize,
+    /// Pending rows of this level (fewer than `chunk` rows between calls).
+    buf: Vec<f32>,
+    /// Chunk rows written so far.
+    chunk_rows_written: u64,
+    rows_written: u64,
+    /// An input row (of the level above) waiting for its 2x2 partner.
+    carry: Option<Vec<f32>>,
+}
+
+impl LevelWriter {
+    fn buf_rows(&self) -> usize {
+        self.buf.len() / self.width
+    }
+
+    /// Append rows; returns the rows of every chunk row completed (and written).
+    fn append(&mut self, rows: &[f32]) -> Result<Vec<f32>, StoreError> {
+        let mut flushed = Vec::new();
+        let row_len = self.width;
+        let mut rest = rows;
+        while !rest.is_empty() {
+            let room = (self.chunk - self.buf_rows()) * row_len;
+            let take = room.min(rest.len());
+            self.buf.extend_from_slice(&rest[..take]);
+            rest = &rest[take..];
+            if self.buf_rows() == self.chunk {
+                self.write_buffer()?;
+                flushed.append(&mut self.buf);
+            }
+        }
+        Ok(flushed)
+    }
+
+    /// Write the last, partial chunk row; returns its rows.
+    fn flush_partial(&mut self) -> Result<Vec<f32>, StoreError> {
+        if self.buf.is_empty() {
+            return Ok(Vec::new());
+        }
+        self.write_buffer()?;
+        Ok(std::mem::take(&mut self.buf))
+    }
+
+    /// Write `buf` as chunk row `chunk_rows_written`, whole chunks in parallel.
+    fn write_buffer(&mut self) -> Result<(), StoreError> {
+        let rows = self.buf_rows();
+        let (w, c) = (self.width, self.chunk);
+        let cy = self.chunk_rows_written;
+        let buf = &self.buf;
+        let array = &self.array;
+        (0..w.div_ceil(c)).into_par_iter().try_for_each(|cx| {
+            let mut data = vec![f32::NAN; c * c];
+            let col0 = cx * c;
+            let cols = c.min(w - col0);
+            for r in 0..rows {
+                data[r * c..r * c + cols].copy_from_slice(&buf[r * w + col0..r * w + col0 + cols]);
+            }
+            array
+                .store_chunk(&[cy, cx as u64], data)
+                .map_err(|e| StoreError::zarr(&self.node, format!("chunk ({cy}, {cx}): {e}")))
+        })?;
+        self.chunk_rows_written += 1;
+        self.rows_written += rows as u64;
+        Ok(())
+    }
+
+    /// 2x2-average rows of the level above (width `2*width` or `2*width-1`)
+    /// into rows of this level, keeping an odd last row in `carry`.
+    fn downsample_input(&mut self, rows_above: &[f32], width_above: usize) -> Vec<f32> {
+        let mut out = Vec::with_capacity(rows_above.len() / 4 + self.width);
+        let mut rows = rows_above.chunks_exact(width_above);
+        if let Some(first) = self.carry.take() {
+            match rows.next() {
+                Some(second) => downsample_rows(&first, Some(second), &mut out),
+                None => {
+                    self.carry = Some(first);
+                    return out;
+                }
+            }
+        }
+        loop {
+            match (rows.next(), rows.next()) {
+                (Some(a), Some(b)) => downsample_rows(a, Some(b), &mut out),
+                (Some(a), None) => {
+                    self.carry = Some(a.to_vec());
+                    break;
+                }
+                _ => break,
+            }
+        }
+        out
+    }
+}
+
+/// All levels of one DSM being written.
+pub struct PyramidWriter {
+    levels: Vec<LevelWriter>,
+}
+
+impl PyramidWriter {
+    /// Create (and store the metadata of) every level array under `group`
+    /// (a node path like "/tile_01.tmp-123").
+    pub fn create(
+        fs: Arc<FilesystemStore>,
+        group: &str,
+        shapes: &[LevelMeta],
+        settings: &StorageSettings,
+    ) -> Result<PyramidWriter, StoreError> {
+        super::configure_zarrs();
+        let mut levels = Vec::with_capacity(shapes.len());
+        for (k, shape) in shapes.iter().enumerate() {
+            let node = format!("{group}/{k}");
+            let mut builder = ArrayBuilder::new(
+                vec![shape.height, shape.width],
+                vec![settings.chunk, settings.chunk],
+                data_type::float32(),
+                f32::NAN,
+            );
+            builder.dimension_names(Some(["y", "x"]));
+            if let Compression::Zstd { level } = settings.compression {
+                builder.bytes_to_bytes_codecs(vec![Arc::new(ZstdCodec::new(level, false))]);
+            }
+            let array = builder
+                .build(fs.clone(), &node)
+                .map_err(|e| StoreError::zarr(&node, e))?;
+            array
+                .store_metadata()
+                .map_err(|e| StoreError::zarr(&node, e))?;
+            levels.push(LevelWriter {
+                array,
+                node,
+                width: shape.width as usize,
+                height: shape.height,
+                chunk: settings.chunk as usize,
+                buf: Vec::new(),
+                chunk_rows_written: 0,
+                rows_written: 0,
+                carry: None,
+            });
+        }
+        Ok(PyramidWriter { levels })
+    }
+
+    /// Feed rows of level 0, in order (any number of whole rows per call).
+    pub fn push_rows(&mut self, rows: &[f32]) -> Result<(), StoreError> {
+        let flushed = self.levels[0].append(rows)?;
+        self.cascade(0, flushed)
+    }
+
+    /// Hand rows flushed from level `k` down the pyramid.
+    fn cascade(&mut self, mut k: usize, mut flushed: Vec<f32>) -> Result<(), StoreError> {
+        while !flushed.is_empty() && k + 1 < self.levels.len() {
+            let width_above = self.levels[k].width;
+            let down = self.levels[k + 1].downsample_input(&flushed, width_above);
+            flushed = self.levels[k + 1].append(&down)?;
+            k += 1;
+        }
+        Ok(())
+    }
+
+    /// Write the remaining partial chunk rows, top level first, and check that
+    /// every level received exactly its height.
+    pub fn finish(mut self) -> Result<(), StoreError> {
+        for k in 0..self.levels.len() {
+            if let Some(row) = self.levels[k].carry.take() {
+                let mut out = Vec::new();
+                downsample_rows(&row, None, &mut out);
+                let flushed = self.levels[k].append(&out)?;
+                self.cascade(k, flushed)?;
+            }
+            let flushed = self.levels[k].flush_partial()?;
+            self.cascade(k, flushed)?;
+        }
+        for level in &self.levels {
+            if level.rows_written != level.height {
+                return Err(StoreError::zarr(
+                    &level.node,
+                    format!(
+                        "wrote {} rows, expected {}",
+                        level.rows_written, level.height
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn levels_halve_down_to_the_overview_floor() {
+        let s = StorageSettings {
+            chunk: 64,
+            min_overview_px: 256,
+            ..Default::default()
+        };
+        let dims: Vec<_> = level_shapes(1000, 300, &s)
+            .iter()
+            .map(|l| (l.width, l.height))
+            .collect();
+        assert_eq!(dims, vec![(1000, 300), (500, 150), (250, 75)]);
+        assert_eq!(level_shapes(256, 10, &s).len(), 1);
+        assert_eq!(level_shapes(257, 10, &s)[1].width, 129);
+    }
+
+    #[test]
+    fn downsample_ignores_nan_and_handles_odd_edges() {
+        let nan = f32::NAN;
+        let a = [1.0, 3.0, nan, nan, 5.0];
+        let b = [5.0, nan, nan, nan, 7.0];
+        let mut out = Vec::new();
+        downsample_rows(&a, Some(&b), &mut out);
+        assert_eq!(out[0], 3.0);
+        assert!(out[1].is_nan());
+        assert_eq!(out[2], 6.0);
+        out.clear();
+        downsample_rows(&a, None, &mut out);
+        assert_eq!((out[0], out[2]), (2.0, 5.0));
+    }
+}
