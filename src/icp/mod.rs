@@ -75,7 +75,7 @@ impl Default for IcpConfig {
 }
 
 /// How a registration ended.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum IcpStatus {
     Converged,

@@ -19,6 +19,7 @@ pub mod ingest;
 mod pyramid;
 pub mod source;
 mod stats;
+pub mod view;
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -32,6 +33,7 @@ pub use catalog::{
 };
 pub use grid::StoreGrid;
 pub use ingest::{ingest, IngestError, IngestOptions, IngestReport};
+pub use view::StorePyramid;
 
 use crate::raster::Crs;
 
