@@ -206,6 +206,15 @@ fn ring_fully_outside(c0: i64, r0: i64, k: i64, w: i64, h: i64) -> bool {
     c0 + k < 0 || r0 + k < 0 || c0 - k >= w || r0 - k >= h
 }
 
+/// A point of the reference surface with its tangent plane.
+#[derive(Clone, Copy, Debug)]
+pub struct SurfacePoint {
+    pub point: Vector3<f64>,
+    pub normal: Vector3<f64>,
+    /// RMS deviation of the neighbourhood from the fitted plane (walls, crowns).
+    pub roughness_m: f64,
+}
+
 /// The reference surface right below a query: the bilinear height of the four
 /// surrounding pixel centres, at the query's own (x, y), and a normal fitted on a
 /// ring of pixels around them that excludes those four. With no horizontal
@@ -217,8 +226,7 @@ pub fn surface_below<G: Grid + ?Sized>(
     grid: &mut G,
     frame: &PixelFrame,
     query: &Vector3<f64>,
-    max_roughness_m: f64,
-) -> Option<(Vector3<f64>, Vector3<f64>)> {
+) -> Option<SurfacePoint> {
     let (col_f, row_f) = frame.to_pixel(query);
     let (u, v) = (col_f - 0.5, row_f - 0.5);
     let (c0, r0) = (u.floor() as i64, v.floor() as i64);
@@ -235,8 +243,8 @@ pub fn surface_below<G: Grid + ?Sized>(
         + h01 * (1.0 - fx) * fy
         + h11 * fx * fy;
     let point = Vector3::new(query.x, query.y, h - frame.z_origin_m);
-    let (normal, fit_rms_m) = plane_fit(grid, frame, col_f.floor() as i64, row_f.floor() as i64, 2);
-    (fit_rms_m <= max_roughness_m).then_some((point, normal))
+    let (normal, roughness_m) = plane_fit(grid, frame, col_f.floor() as i64, row_f.floor() as i64, 2);
+    Some(SurfacePoint { point, normal, roughness_m })
 }
 
 /// Pixel radius of the plane fitted for normals: a 7 x 7 window keeps the

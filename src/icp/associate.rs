@@ -22,6 +22,8 @@ pub struct Association {
     pub corrs: Vec<Correspondence>,
     /// NN distance of each inlier, same order as `corrs`.
     pub distances_m: Vec<f64>,
+    /// Roughness of the reference surface at each inlier (0 unless point-to-surface).
+    pub roughness_m: Vec<f64>,
     /// Queries with a valid reference pixel right below them.
     pub with_reference_below: usize,
     pub queries: usize,
@@ -46,7 +48,6 @@ pub fn associate<P: Pyramid>(
     t_ref_moving: &Isometry3<f64>,
     tau_m: f64,
     metric: Metric,
-    max_roughness_m: f64,
 ) -> Result<Association, String> {
     let blocks: Vec<Result<Association, String>> = points
         .par_chunks(BLOCK)
@@ -68,15 +69,14 @@ pub fn associate<P: Pyramid>(
                 if n.distance_m > tau_m {
                     continue;
                 }
-                let (reference, normal) = match metric {
-                    Metric::PointToSurface => {
-                        match surface_below(&mut grid, frame, &q, max_roughness_m) {
-                            Some(s) => s,
-                            None => continue,
-                        }
-                    }
-                    _ => (n.point, normal_at(&mut grid, frame, n.col, n.row)),
+                let (reference, normal, roughness_m) = match metric {
+                    Metric::PointToSurface => match surface_below(&mut grid, frame, &q) {
+                        Some(s) => (s.point, s.normal, s.roughness_m),
+                        None => continue,
+                    },
+                    _ => (n.point, normal_at(&mut grid, frame, n.col, n.row), 0.0),
                 };
+                out.roughness_m.push(roughness_m);
                 out.corrs.push(Correspondence {
                     moving: q,
                     reference,
@@ -96,6 +96,7 @@ pub fn associate<P: Pyramid>(
         let b = block?;
         all.corrs.extend(b.corrs);
         all.distances_m.extend(b.distances_m);
+        all.roughness_m.extend(b.roughness_m);
         all.with_reference_below += b.with_reference_below;
         all.queries += b.queries;
         all.nn.queries += b.nn.queries;

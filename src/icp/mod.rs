@@ -50,8 +50,8 @@ pub struct IcpConfig {
     /// Coarsest overview level used (coarse-to-fine starts there); 0 = full resolution only.
     pub max_level: usize,
     /// Point-to-surface only: skip places whose neighbourhood deviates from a
-    /// plane by more than this RMS (walls, tree crowns): their tangent plane is
-    /// not the surface.
+    /// plane by more than this RMS and more than 3x the median roughness (walls,
+    /// tree crowns): their tangent plane is not the surface.
     pub max_roughness_m: f64,
     /// Converged when an update moves less than this (metres, at the overlap's edge).
     pub tolerance_m: f64,
@@ -283,7 +283,6 @@ fn run_level<R: Pyramid, M: Pyramid>(
             &t_ref_moving,
             tau_m,
             config.metric,
-            config.max_roughness_m,
         )
         .map_err(read)?;
         add_stats(&mut nn, &assoc.nn);
@@ -292,7 +291,7 @@ fn run_level<R: Pyramid, M: Pyramid>(
             break;
         }
         history.push((rms(&assoc.distances_m), assoc.corrs.len()));
-        let corrs = weighted(assoc.corrs, config.metric);
+        let corrs = weighted(smooth_only(assoc.corrs, &assoc.roughness_m, config.max_roughness_m), config.metric);
         let (update, ratio) = match config.metric {
             Metric::PointToPlane | Metric::PointToSurface => {
                 match point_to_plane(&corrs, config.model) {
@@ -330,7 +329,6 @@ fn run_level<R: Pyramid, M: Pyramid>(
         &t_ref_moving,
         tau_m,
         config.metric,
-        config.max_roughness_m,
     )
     .map_err(read)?;
     add_stats(&mut nn, &final_association.nn);
@@ -350,6 +348,19 @@ fn run_level<R: Pyramid, M: Pyramid>(
         final_association,
         nn,
     })
+}
+
+/// Drops correspondences on rough places: above both `floor_m` and 3x the
+/// median roughness (so steep but smooth terrain at coarse GSD is kept).
+fn smooth_only(corrs: Vec<Correspondence>, roughness_m: &[f64], floor_m: f64) -> Vec<Correspondence> {
+    if roughness_m.len() != corrs.len() || corrs.is_empty() {
+        return corrs;
+    }
+    let mut sorted = roughness_m.to_vec();
+    let mid = sorted.len() / 2;
+    let median = *sorted.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let limit = floor_m.max(3.0 * median);
+    corrs.into_iter().zip(roughness_m).filter(|(_, &r)| r <= limit).map(|(c, _)| c).collect()
 }
 
 /// Tukey biweight on the residual, scale from the median absolute residual.
