@@ -101,7 +101,7 @@ fn ingest_directory_then_info_lists_all_three() {
             valid > 0 && valid < 506 * 760,
             "TTP is half water (NaN): {valid}"
         );
-        assert!(!d["source_dtype"].as_str().unwrap().is_empty());
+        assert_eq!(d["source_dtype"], "Float32");
     }
 }
 

@@ -12,6 +12,13 @@ pub enum SampleType {
     F32,
 }
 
+impl SampleType {
+    /// GDAL's name for the type ("Float32", "Int16", ...).
+    pub fn gdal_name(self) -> &'static str {
+        "Float32"
+    }
+}
+
 #[derive(Clone, Debug)]
 pub struct GeoTiffInfo {
     pub path: PathBuf,

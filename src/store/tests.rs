@@ -62,7 +62,7 @@ impl Inputs {
             geotransform: GeoTransform::north_up(630_000.0, 4_833_000.0, 0.5, 0.5),
             crs,
             nodata: Some(-9999.0),
-            dtype: "F32".into(),
+            dtype: "Float32".into(),
         };
         self.rasters
             .insert(path.clone(), MemSource { raster, data });
