@@ -478,3 +478,12 @@ fn store_from_raw_rasters_for_check_zarr() {
     let actions = run(&inputs, &tifs, &store, &opts).unwrap();
     eprintln!("{actions:?}");
 }
+
+#[test]
+fn store_types_cross_threads() {
+    fn shared<T: Send + Sync>() {}
+    fn owned<T: Send>() {}
+    shared::<Store>();
+    shared::<ChunkCache>();
+    owned::<StoreGrid<'static>>();
+}
