@@ -96,3 +96,96 @@ impl<G: Grid + ?Sized> Grid for &mut G {
         (**self).take_error()
     }
 }
+
+/// All levels of one DSM (level 0 full resolution, each next level 2x coarser).
+/// Each call to `open_level` gives an independent view, so every worker thread
+/// can own one.
+pub trait Pyramid: Sync {
+    type Level<'a>: Grid
+    where
+        Self: 'a;
+    fn num_levels(&self) -> usize;
+    fn open_level(&self, level: usize) -> Result<Self::Level<'_>, String>;
+}
+
+/// A borrowed in-memory level.
+pub struct MemView<'a>(pub &'a MemGrid);
+
+impl Grid for MemView<'_> {
+    fn width(&self) -> i64 {
+        self.0.width
+    }
+    fn height(&self) -> i64 {
+        self.0.height
+    }
+    fn geotransform(&self) -> GeoTransform {
+        self.0.geotransform
+    }
+    #[inline]
+    fn get(&mut self, col: i64, row: i64) -> f32 {
+        if col < 0 || row < 0 || col >= self.0.width || row >= self.0.height {
+            return f32::NAN;
+        }
+        self.0.data[(row * self.0.width + col) as usize]
+    }
+}
+
+/// An in-memory pyramid built with the same no-data-aware 2x2 mean as ingest.
+#[derive(Clone, Debug)]
+pub struct MemPyramid {
+    pub levels: Vec<MemGrid>,
+}
+
+impl MemPyramid {
+    /// Builds overviews until the long side is at most `min_size_px`.
+    pub fn build(level0: MemGrid, min_size_px: i64) -> Self {
+        let mut levels = vec![level0];
+        loop {
+            let last = levels.last().unwrap();
+            if last.width.max(last.height) <= min_size_px || last.width < 2 || last.height < 2 {
+                break;
+            }
+            let next = downsample_2x(last);
+            levels.push(next);
+        }
+        MemPyramid { levels }
+    }
+}
+
+/// No-data-aware 2x2 mean (an output pixel is NaN only when all inputs are).
+pub fn downsample_2x(grid: &MemGrid) -> MemGrid {
+    let (w, h) = ((grid.width + 1) / 2, (grid.height + 1) / 2);
+    let mut src = MemView(grid);
+    let mut data = Vec::with_capacity((w * h) as usize);
+    for row in 0..h {
+        for col in 0..w {
+            let (mut sum, mut n) = (0.0f64, 0u32);
+            for (dc, dr) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                let v = src.get(2 * col + dc, 2 * row + dr);
+                if !v.is_nan() {
+                    sum += v as f64;
+                    n += 1;
+                }
+            }
+            data.push(if n == 0 {
+                f32::NAN
+            } else {
+                (sum / n as f64) as f32
+            });
+        }
+    }
+    MemGrid::new(w, h, grid.geotransform.overview(1), data)
+}
+
+impl Pyramid for MemPyramid {
+    type Level<'a> = MemView<'a>;
+    fn num_levels(&self) -> usize {
+        self.levels.len()
+    }
+    fn open_level(&self, level: usize) -> Result<MemView<'_>, String> {
+        self.levels
+            .get(level)
+            .map(MemView)
+            .ok_or_else(|| format!("no level {level}"))
+    }
+}

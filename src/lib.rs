@@ -16,11 +16,18 @@
 pub mod averaging;
 pub mod cache;
 pub mod error;
+pub mod fit;
 pub mod geotiff;
 pub mod graph;
 pub mod grid;
+pub mod icp;
+pub mod journal;
+pub mod nn;
+pub mod pipeline;
+pub mod plan;
 pub mod poses;
 pub mod raster;
+pub mod rng;
 pub mod store;
 pub mod synth;
 

@@ -1,66 +1,303 @@
-//! TEMPORARY SHIM on branch h-store only: the contract signatures of the
-//! streaming GeoTIFF reader (helper "tiff" writes the real one), so the store
-//! compiles before it lands. It reads nothing: `open` always fails. The lead
-//! replaces this file with the real reader when merging.
+//! Streaming GeoTIFF reader: opens a single-band elevation GeoTIFF (stripped or
+//! tiled; none, LZW, Deflate, ZSTD or PackBits; predictors 2 and 3; classic or
+//! BigTIFF; 8/16/32-bit integers or 32/64-bit floats), reports its size,
+//! georeferencing and no-data as GDAL would, and hands out rows as `f32` with
+//! no-data as NaN.
+//!
+//! `read_rows` decodes only the strips or tiles that touch the requested rows,
+//! in parallel with rayon (one `tiff` decoder per worker, all reading one
+//! memory map of the file), so memory stays near one row of blocks. The block
+//! row that a request ends inside is kept, so reading a file top to bottom in
+//! any row step decodes each block once. A file stored as one giant strip is
+//! one block: it decodes in one call and that block is held (whole image).
+//! Multi-band files give band 1. Submodules: `layout` (tags to block grid and
+//! metadata), `decode` (one block to `f32`).
 
+mod decode;
+mod layout;
+#[cfg(test)]
+mod tests;
+
+use std::fs::File;
 use std::path::{Path, PathBuf};
 
-use crate::raster::{Crs, GeoTransform};
+use rayon::prelude::*;
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum SampleType {
-    F32,
+use crate::geotiff::geokeys::GeoKeyError;
+use crate::raster::{Crs, GeoTransform};
+use decode::{BlockDecoder, MapBytes};
+
+/// Every way opening or reading a GeoTIFF can fail. Display: one line naming the file.
+#[derive(Debug, thiserror::Error)]
+pub enum GeoTiffError {
+    #[error("{}: cannot read file: {source}", .path.display())]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{}: not a TIFF file ({detail})", .path.display())]
+    NotTiff { path: PathBuf, detail: String },
+    #[error("{}: truncated file: {detail}", .path.display())]
+    Truncated { path: PathBuf, detail: String },
+    #[error("{}: corrupt TIFF: {detail}", .path.display())]
+    Corrupt { path: PathBuf, detail: String },
+    #[error("{}: unsupported compression {name} (TIFF code {code}); supported: none, LZW, Deflate, ZSTD, PackBits", .path.display())]
+    UnsupportedCompression {
+        path: PathBuf,
+        name: String,
+        code: u16,
+    },
+    #[error("{}: unsupported sample format: {detail}; supported: 8/16/32-bit integers, 32/64-bit floats", .path.display())]
+    UnsupportedSampleFormat { path: PathBuf, detail: String },
+    #[error("{}: unsupported image layout: {detail}", .path.display())]
+    UnsupportedLayout { path: PathBuf, detail: String },
+    #[error("{}: zero-size image ({width} x {height} pixels)", .path.display())]
+    ZeroSize {
+        path: PathBuf,
+        width: u64,
+        height: u64,
+    },
+    #[error("{}: no georeferencing (needs ModelPixelScale + ModelTiepoint or ModelTransformation)", .path.display())]
+    NoGeoreferencing { path: PathBuf },
+    #[error("{}: geotransform {geotransform:?} is rotated, sheared or not north-up; only north-up rasters are supported", .path.display())]
+    NotNorthUp {
+        path: PathBuf,
+        geotransform: [f64; 6],
+    },
+    #[error("{}: bad georeferencing tags: {detail}", .path.display())]
+    BadGeoTags { path: PathBuf, detail: String },
+    #[error("{}: rows {row0}..{} requested but the raster has {height} rows", .path.display(), .row0 + .rows)]
+    RowsOutOfRange {
+        path: PathBuf,
+        row0: u64,
+        rows: u64,
+        height: u64,
+    },
 }
 
-impl SampleType {
-    /// GDAL's name for the type ("Float32", "Int16", ...).
-    pub fn gdal_name(self) -> &'static str {
-        "Float32"
+impl GeoTiffError {
+    /// True for every problem with the file itself (the CLI exits with code 2);
+    /// false only for a caller's mistake (rows out of range).
+    pub fn is_bad_input(&self) -> bool {
+        !matches!(self, GeoTiffError::RowsOutOfRange { .. })
+    }
+
+    fn from_geokeys(path: &Path, e: GeoKeyError) -> GeoTiffError {
+        let path = path.to_path_buf();
+        match e {
+            GeoKeyError::NoGeoreferencing => GeoTiffError::NoGeoreferencing { path },
+            GeoKeyError::NotNorthUp(geotransform) => {
+                GeoTiffError::NotNorthUp { path, geotransform }
+            }
+            e @ GeoKeyError::Malformed { .. } => GeoTiffError::BadGeoTags {
+                path,
+                detail: e.to_string(),
+            },
+        }
     }
 }
 
-#[derive(Clone, Debug)]
+/// The stored sample type of band 1 (every type is handed out as `f32`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SampleType {
+    U8,
+    I8,
+    U16,
+    I16,
+    U32,
+    I32,
+    F32,
+    F64,
+}
+
+impl SampleType {
+    pub fn bytes(self) -> usize {
+        match self {
+            SampleType::U8 | SampleType::I8 => 1,
+            SampleType::U16 | SampleType::I16 => 2,
+            SampleType::U32 | SampleType::I32 | SampleType::F32 => 4,
+            SampleType::F64 => 8,
+        }
+    }
+
+    /// GDAL's name for the type ("Float32", "Int16", ...).
+    pub fn gdal_name(self) -> &'static str {
+        match self {
+            SampleType::U8 => "Byte",
+            SampleType::I8 => "Int8",
+            SampleType::U16 => "UInt16",
+            SampleType::I16 => "Int16",
+            SampleType::U32 => "UInt32",
+            SampleType::I32 => "Int32",
+            SampleType::F32 => "Float32",
+            SampleType::F64 => "Float64",
+        }
+    }
+}
+
+/// What the file is: size, layout, georeferencing, no-data.
+#[derive(Clone, Debug, PartialEq)]
 pub struct GeoTiffInfo {
     pub path: PathBuf,
     pub width: u64,
     pub height: u64,
     pub sample_type: SampleType,
+    /// "none", "lzw", "deflate", "zstd" or "packbits".
     pub compression: String,
     pub tiled: bool,
+    /// Tile size, or (width, rows per strip) for a stripped file.
     pub block_width: u32,
     pub block_height: u32,
     pub bigtiff: bool,
+    /// Pixel-is-area, as GDAL reports it (pixel-is-point files are shifted by half a pixel).
     pub geotransform: GeoTransform,
     pub crs: Crs,
+    /// GDAL_NODATA as stored (NaN when the file says "nan").
     pub nodata: Option<f64>,
+    /// Samples per pixel in the file; only band 1 is read.
+    pub band_count: u16,
+    /// TIFF predictor: 1 none, 2 horizontal, 3 floating point.
+    pub predictor: u16,
+    /// The raster type geokey said pixel-is-point.
+    pub pixel_is_point: bool,
 }
 
-#[derive(Debug, thiserror::Error)]
-pub enum GeoTiffError {
-    #[error("{0}: the GeoTIFF reader is not in this branch yet (shim)")]
-    NotBuilt(PathBuf),
-}
-
-impl GeoTiffError {
-    pub fn is_bad_input(&self) -> bool {
-        false
-    }
-}
-
+/// One open GeoTIFF. `Send`, not meant to be shared: each worker opens its own.
 pub struct GeoTiffReader {
     info: GeoTiffInfo,
+    blocks: BlockDecoder,
+    /// The decoded blocks of the block row the last request ended inside.
+    kept: Option<KeptBlockRow>,
+}
+
+struct KeptBlockRow {
+    block_row: u64,
+    blocks: Vec<Vec<f32>>,
 }
 
 impl GeoTiffReader {
+    /// Open and validate the file; reads tags only, no pixel data.
     pub fn open(path: &Path) -> Result<GeoTiffReader, GeoTiffError> {
-        Err(GeoTiffError::NotBuilt(path.to_path_buf()))
+        let io = |source| GeoTiffError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        let file = File::open(path).map_err(io)?;
+        let file_len = file.metadata().map_err(io)?.len();
+        if file_len < 8 {
+            return Err(GeoTiffError::NotTiff {
+                path: path.to_path_buf(),
+                detail: format!("only {file_len} bytes"),
+            });
+        }
+        // SAFETY: the map is read-only; like GDAL, we assume nobody truncates the
+        // file while it is open (that would be a SIGBUS, not a wrong answer).
+        let map = unsafe { memmap2::Mmap::map(&file) }.map_err(io)?;
+        let map = MapBytes::new(map);
+        layout::check_magic(path, map.as_ref())?;
+        let mut decoder = decode::new_decoder(&map).map_err(|e| decode::tiff_error(path, e))?;
+        let bigtiff = map.as_ref()[2..4] == [43, 0] || map.as_ref()[2..4] == [0, 43];
+        let parsed = layout::parse(path, &mut decoder, file_len, bigtiff)?;
+        let blocks = BlockDecoder::new(path, map, parsed.layout, parsed.info.nodata, decoder);
+        tracing::debug!(path = %path.display(), width = parsed.info.width, height = parsed.info.height,
+            compression = %parsed.info.compression, "geotiff opened");
+        Ok(GeoTiffReader {
+            info: parsed.info,
+            blocks,
+            kept: None,
+        })
     }
 
     pub fn info(&self) -> &GeoTiffInfo {
         &self.info
     }
 
-    pub fn read_rows(&mut self, _row0: u64, _rows: u64) -> Result<Vec<f32>, GeoTiffError> {
-        Err(GeoTiffError::NotBuilt(self.info.path.clone()))
+    /// Rows `row0 .. row0 + rows`, row-major, `width * rows` values; no-data and
+    /// NaN are NaN. Decodes only the blocks touching those rows.
+    pub fn read_rows(&mut self, row0: u64, rows: u64) -> Result<Vec<f32>, GeoTiffError> {
+        let (width, height) = (self.info.width, self.info.height);
+        let end = row0
+            .checked_add(rows)
+            .filter(|&e| e <= height)
+            .ok_or_else(|| GeoTiffError::RowsOutOfRange {
+                path: self.info.path.clone(),
+                row0,
+                rows,
+                height,
+            })?;
+        let mut out = vec![0f32; (width * rows) as usize];
+        if rows == 0 {
+            return Ok(out);
+        }
+        let layout = self.blocks.layout();
+        let (across, block_height) = (layout.blocks_across, layout.block_height);
+        let (first, last) = (row0 / block_height, (end - 1) / block_height);
+        // Enough blocks per parallel batch to keep every thread busy when blocks
+        // are small strips; at least one whole block row.
+        let batch_blocks = 4 * rayon::current_num_threads() as u64;
+        let mut block_row = first;
+        while block_row <= last {
+            let mut batch_last = block_row;
+            while batch_last < last && (batch_last - block_row + 1) * across < batch_blocks {
+                batch_last += 1;
+            }
+            let kept_row = self.kept.as_ref().map(|k| k.block_row);
+            let jobs: Vec<(u64, u64)> = (block_row..=batch_last)
+                .filter(|&r| Some(r) != kept_row)
+                .flat_map(|r| (0..across).map(move |bx| (bx, r)))
+                .collect();
+            let blocks = &self.blocks;
+            let mut decoded: Vec<Vec<f32>> = jobs
+                .par_iter()
+                .map(|&(bx, by)| blocks.decode(bx, by))
+                .collect::<Result<_, _>>()?;
+            let mut next = 0;
+            for r in block_row..=batch_last {
+                let row_blocks: &[Vec<f32>] = match &self.kept {
+                    Some(k) if k.block_row == r => &k.blocks,
+                    _ => {
+                        next += across as usize;
+                        &decoded[next - across as usize..next]
+                    }
+                };
+                copy_block_row(self.blocks.layout(), r, row_blocks, row0, end, &mut out);
+            }
+            let ends_inside = (last + 1) * block_height > end;
+            if batch_last == last && ends_inside && kept_row != Some(last) {
+                let blocks = decoded.split_off(decoded.len() - across as usize);
+                self.kept = Some(KeptBlockRow {
+                    block_row: last,
+                    blocks,
+                });
+            }
+            block_row = batch_last + 1;
+        }
+        Ok(out)
     }
+}
+
+/// Copy the rows of block row `block_row` that fall in `row0..end` into `out`.
+fn copy_block_row(
+    layout: &layout::BlockLayout,
+    block_row: u64,
+    blocks: &[Vec<f32>],
+    row0: u64,
+    end: u64,
+    out: &mut [f32],
+) {
+    let width = layout.width as usize;
+    let top = block_row * layout.block_height;
+    let (y0, y1) = (top.max(row0), (top + layout.block_height).min(end));
+    let dst = &mut out[(y0 - row0) as usize * width..(y1 - row0) as usize * width];
+    dst.par_chunks_mut(width)
+        .enumerate()
+        .for_each(|(i, dst_row)| {
+            let in_block = (y0 - top) as usize + i;
+            let mut x = 0usize;
+            for block in blocks {
+                let w = layout.block_data_width(x as u64) as usize;
+                dst_row[x..x + w].copy_from_slice(&block[in_block * w..(in_block + 1) * w]);
+                x += w;
+            }
+        });
 }

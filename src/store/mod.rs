@@ -20,6 +20,7 @@ mod plan;
 mod pyramid;
 pub mod source;
 mod stats;
+pub mod view;
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -33,6 +34,7 @@ pub use catalog::{
 };
 pub use grid::StoreGrid;
 pub use ingest::{ingest, IngestError, IngestOptions, IngestReport};
+pub use view::StorePyramid;
 
 use crate::raster::Crs;
 

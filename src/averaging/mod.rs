@@ -1,0 +1,327 @@
+//! Motion averaging (paper step 4): from the pairwise relative poses M_ij of the scene
+//! graph to one pose M_i per DSM. Rotations first, by the spectral method
+//! ([`rotation`]), then translations by weighted linear least squares ([`translation`]);
+//! optionally robust: edges that disagree with the result are dropped (or, if they
+//! hold a component together, down-weighted) and the graph is solved again
+//! ([`robust`]). Each connected component is solved on its own gauge ([`gauge`]).
+//!
+//! The solver works in whatever frame the edges are given in; give it edges in a
+//! local frame near the data (`poses::to_local`), not raw UTM coordinates.
+//! Memory is O(nodes + edges) (no 3N x 3N matrix), time O(edges) per CG iteration.
+
+mod cg;
+mod gauge;
+mod robust;
+mod rotation;
+pub mod synthetic;
+mod translation;
+
+pub use gauge::fix_gauge;
+pub use robust::edge_residuals;
+
+use crate::graph::{chain_poses, max_spanning_forest, GraphError, PoseGraph};
+use crate::poses::rigid::{from_parts, rotation};
+use cg::CgTolerance;
+use nalgebra::{Matrix3, Matrix4, Vector3};
+use robust::{select_outliers, OutlierRule};
+use rotation::{solve_rotations, RotationSettings};
+use std::time::Instant;
+use translation::solve_translations;
+
+/// Which rigid motion of each component is fixed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Gauge {
+    /// Mean rotation (SO(3) projection of the sum) is the identity, translations sum to 0.
+    Mean,
+    /// This node's pose is the identity; components without it use `Mean`.
+    Anchor(usize),
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AveragingOptions {
+    pub gauge: Gauge,
+    /// Reject outlier edges and solve again.
+    pub robust: bool,
+    /// Most subspace steps of the rotation solver (two or three are typical).
+    pub rotation_max_iter: usize,
+    /// The rotation solver stops when no rotation changes by more than this, radians.
+    pub rotation_tol_rad: f64,
+    /// Most iterations of each conjugate-gradient solve.
+    pub cg_max_iter: usize,
+    /// Relative residual |r| / |b| at which the translation solve stops.
+    pub cg_tol: f64,
+    /// Outlier when a residual exceeds max(outlier_k * median, floor).
+    pub outlier_k: f64,
+    pub outlier_floor_m: f64,
+    pub outlier_floor_deg: f64,
+    /// Most reject-and-solve-again rounds.
+    pub robust_max_rounds: usize,
+}
+
+impl Default for AveragingOptions {
+    fn default() -> Self {
+        AveragingOptions {
+            gauge: Gauge::Mean,
+            robust: true,
+            rotation_max_iter: 20,
+            rotation_tol_rad: 1e-9,
+            cg_max_iter: 20_000,
+            cg_tol: 1e-10,
+            outlier_k: 5.0,
+            outlier_floor_m: 0.05,
+            outlier_floor_deg: 0.005,
+            robust_max_rounds: 10,
+        }
+    }
+}
+
+/// Disagreement of the averaged poses with one edge: M_i^-1 M_j against M_ij.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EdgeResidual {
+    pub rotation_deg: f64,
+    pub translation_m: f64,
+}
+
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct AveragingTimings {
+    pub rotation_s: f64,
+    pub translation_s: f64,
+    pub total_s: f64,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct AveragingResult {
+    /// M_i in the frame of the edges, gauge fixed per component.
+    pub poses: Vec<Matrix4<f64>>,
+    /// One per edge of the graph (dropped edges included), against the final poses.
+    pub edge_residuals: Vec<EdgeResidual>,
+    /// Edges rejected as outliers (ascending).
+    pub dropped_edges: Vec<usize>,
+    /// Outlier edges kept at a lower weight because they hold a component together.
+    pub downweighted_edges: Vec<usize>,
+    /// Connected components (over edges of positive weight), each ascending.
+    pub components: Vec<Vec<usize>>,
+    /// Subspace steps of the rotation solver, summed over robust rounds.
+    pub rotation_iterations: usize,
+    /// Inner conjugate-gradient iterations of the rotation solver.
+    pub rotation_cg_iterations: usize,
+    /// Conjugate-gradient iterations of the translation solves.
+    pub cg_iterations: usize,
+    /// Solves done: 1 + robust rounds that changed something.
+    pub solves: usize,
+    /// Every solve met its tolerance.
+    pub converged: bool,
+    pub timings: AveragingTimings,
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum AveragingError {
+    #[error("pose graph: {0}")]
+    Graph(#[from] GraphError),
+    #[error("anchor node {anchor} out of range (graph has {n} nodes)")]
+    AnchorOutOfRange { anchor: usize, n: usize },
+    #[error("averaging options: {0}")]
+    InvalidOptions(String),
+}
+
+/// Averages the poses of every connected component of `graph`.
+pub fn average(
+    graph: &PoseGraph,
+    options: &AveragingOptions,
+) -> Result<AveragingResult, AveragingError> {
+    let started = Instant::now();
+    graph.validate()?;
+    check_options(graph, options)?;
+    let _span =
+        tracing::info_span!("averaging", nodes = graph.n, edges = graph.edges.len()).entered();
+    let components = graph.components();
+    let mut weights: Vec<f64> = graph.edges.iter().map(|e| e.weight).collect();
+    let tree = max_spanning_forest(graph, |e| e.weight);
+    let mut solver = Solver::new(graph, &components, options);
+    let mut rotations: Vec<Matrix3<f64>> =
+        chain_poses(graph, &tree, 0)?.iter().map(rotation).collect();
+    let mut translations = vec![Vector3::zeros(); graph.n];
+    solver.solve(&weights, &mut rotations, &mut translations);
+    let mut poses = assemble(&rotations, &translations);
+    let mut residuals = edge_residuals(graph, &poses);
+    let (mut dropped, mut downweighted) = (Vec::new(), Vec::new());
+    let mut protected = vec![false; graph.edges.len()];
+    let rule = OutlierRule {
+        k: options.outlier_k,
+        floor_m: options.outlier_floor_m,
+        floor_deg: options.outlier_floor_deg,
+    };
+    for _ in 0..if options.robust {
+        options.robust_max_rounds
+    } else {
+        0
+    } {
+        let round = select_outliers(graph, &weights, &residuals, &protected, rule);
+        if round.dropped.is_empty() && round.downweighted.is_empty() {
+            break;
+        }
+        tracing::info!(
+            dropped = round.dropped.len(),
+            downweighted = round.downweighted.len(),
+            "outlier edges rejected"
+        );
+        for &k in &round.dropped {
+            weights[k] = 0.0;
+            dropped.push(k);
+        }
+        for &(k, factor) in &round.downweighted {
+            weights[k] *= factor;
+            protected[k] = true;
+            downweighted.push(k);
+        }
+        solver.solve(&weights, &mut rotations, &mut translations);
+        poses = assemble(&rotations, &translations);
+        residuals = edge_residuals(graph, &poses);
+    }
+    for members in &components.members {
+        let anchor = match options.gauge {
+            Gauge::Anchor(k) if members.binary_search(&k).is_ok() => Some(k),
+            _ => None,
+        };
+        fix_gauge(&mut poses, members, anchor);
+    }
+    dropped.sort_unstable();
+    downweighted.sort_unstable();
+    let mut timings = solver.timings;
+    timings.total_s = started.elapsed().as_secs_f64();
+    tracing::info!(
+        solves = solver.solves,
+        dropped = dropped.len(),
+        rotation_s = timings.rotation_s,
+        translation_s = timings.translation_s,
+        "poses averaged"
+    );
+    let result = AveragingResult {
+        edge_residuals: edge_residuals(graph, &poses),
+        poses,
+        dropped_edges: dropped,
+        downweighted_edges: downweighted,
+        components: Vec::new(),
+        rotation_iterations: solver.rotation_iterations,
+        rotation_cg_iterations: solver.rotation_cg_iterations,
+        cg_iterations: solver.cg_iterations,
+        solves: solver.solves,
+        converged: solver.converged,
+        timings,
+    };
+    Ok(AveragingResult {
+        components: components.members,
+        ..result
+    })
+}
+
+fn check_options(graph: &PoseGraph, options: &AveragingOptions) -> Result<(), AveragingError> {
+    if let Gauge::Anchor(anchor) = options.gauge {
+        if anchor >= graph.n {
+            return Err(AveragingError::AnchorOutOfRange { anchor, n: graph.n });
+        }
+    }
+    let positive = [
+        ("rotation_tol_rad", options.rotation_tol_rad),
+        ("cg_tol", options.cg_tol),
+        ("outlier_k", options.outlier_k),
+        ("outlier_floor_m", options.outlier_floor_m),
+        ("outlier_floor_deg", options.outlier_floor_deg),
+    ];
+    if let Some((name, value)) = positive.iter().find(|(_, v)| !(v.is_finite() && *v > 0.0)) {
+        return Err(AveragingError::InvalidOptions(format!(
+            "{name} must be a positive number, not {value}"
+        )));
+    }
+    if options.rotation_max_iter == 0 || options.cg_max_iter == 0 {
+        return Err(AveragingError::InvalidOptions(
+            "iteration limits must be positive".into(),
+        ));
+    }
+    Ok(())
+}
+
+fn assemble(rotations: &[Matrix3<f64>], translations: &[Vector3<f64>]) -> Vec<Matrix4<f64>> {
+    rotations
+        .iter()
+        .zip(translations)
+        .map(|(r, t)| from_parts(r, t))
+        .collect()
+}
+
+/// One rotation + translation solve, with counters across robust rounds.
+struct Solver<'a> {
+    graph: &'a PoseGraph,
+    components: &'a crate::graph::Components,
+    options: &'a AveragingOptions,
+    rotation_iterations: usize,
+    rotation_cg_iterations: usize,
+    cg_iterations: usize,
+    solves: usize,
+    converged: bool,
+    timings: AveragingTimings,
+}
+
+impl<'a> Solver<'a> {
+    fn new(
+        graph: &'a PoseGraph,
+        components: &'a crate::graph::Components,
+        options: &'a AveragingOptions,
+    ) -> Self {
+        Solver {
+            graph,
+            components,
+            options,
+            rotation_iterations: 0,
+            rotation_cg_iterations: 0,
+            cg_iterations: 0,
+            solves: 0,
+            converged: true,
+            timings: AveragingTimings::default(),
+        }
+    }
+
+    /// Refines `rotations` and `translations` (used as starting points) for `weights`.
+    fn solve(
+        &mut self,
+        weights: &[f64],
+        rotations: &mut Vec<Matrix3<f64>>,
+        translations: &mut Vec<Vector3<f64>>,
+    ) {
+        let started = Instant::now();
+        let settings = RotationSettings {
+            max_outer_iter: self.options.rotation_max_iter,
+            tol_rad: self.options.rotation_tol_rad,
+            cg_max_iter: self.options.cg_max_iter,
+        };
+        let solution = solve_rotations(self.graph, weights, self.components, rotations, settings);
+        self.rotation_iterations += solution.iterations;
+        self.rotation_cg_iterations += solution.cg_iterations;
+        self.converged &= solution.converged;
+        *rotations = solution.rotations;
+        let rotated = Instant::now();
+        self.timings.rotation_s += (rotated - started).as_secs_f64();
+        let tolerance = CgTolerance {
+            relative: self.options.cg_tol,
+            absolute: 0.0,
+            max_iter: self.options.cg_max_iter,
+        };
+        let start = std::mem::take(translations);
+        let solution = solve_translations(
+            self.graph,
+            weights,
+            self.components,
+            rotations,
+            start,
+            tolerance,
+        );
+        self.cg_iterations += solution.report.iterations;
+        self.converged &= solution.report.converged;
+        *translations = solution.translations;
+        self.timings.translation_s += rotated.elapsed().as_secs_f64();
+        self.solves += 1;
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,283 @@
+//! Synthetic pose graphs with known truth, for tests and `tools/bench_averaging.rs`:
+//! tiny random rotations and metre-scale translations (as between real DSMs), edges
+//! laid out as a chain, a tile grid or a random graph, relative poses with Gaussian
+//! noise, the paper's weights. Also the gauge-free error of estimated poses.
+//! Deterministic: a seeded SplitMix64 generator, no external crate.
+
+use super::gauge::fix_gauge;
+use crate::graph::{paper_weights, Components, Edge, PoseGraph};
+use crate::poses::rigid::{
+    from_parts, inverse_rigid, rotation, rotation_between_deg, rotation_from_axis_angle,
+    translation,
+};
+use nalgebra::{Matrix4, Vector3};
+
+/// SplitMix64: small, fast, good enough for test data.
+#[derive(Clone, Debug)]
+pub struct SplitMix64(u64);
+
+impl SplitMix64 {
+    pub fn new(seed: u64) -> Self {
+        SplitMix64(seed)
+    }
+
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in [0, 1).
+    pub fn uniform(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    /// Uniform integer in [0, n).
+    pub fn below(&mut self, n: usize) -> usize {
+        ((self.next_u64() as u128 * n as u128) >> 64) as usize
+    }
+
+    /// Standard normal (Box-Muller).
+    pub fn normal(&mut self) -> f64 {
+        let u1 = 1.0 - self.uniform();
+        let u2 = self.uniform();
+        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+    }
+
+    pub fn normal3(&mut self, sigma: f64) -> Vector3<f64> {
+        Vector3::new(self.normal(), self.normal(), self.normal()) * sigma
+    }
+}
+
+/// How the nodes are connected.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Topology {
+    /// Node k overlaps nodes k+1 ..= k+reach (reach 1 is a tree).
+    Chain { reach: usize },
+    /// Tiles in rows of `width`: edges to the right, below, both diagonals and two
+    /// steps right and below (about 6 edges per node, as tiles overlapping by > 50 %).
+    Grid { width: usize },
+    /// Node k joined to k+1 (connected) and to edges_per_node - 1 uniformly random nodes.
+    Random { edges_per_node: usize },
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SyntheticSpec {
+    pub nodes: usize,
+    pub topology: Topology,
+    /// Standard deviation of the true rotation angle per axis, degrees.
+    pub rotation_spread_deg: f64,
+    /// Standard deviation of the true translations per axis, metres.
+    pub translation_spread_m: f64,
+    /// Noise on each relative rotation, degrees per axis (standard deviation).
+    pub noise_rotation_deg: f64,
+    /// Noise on each relative translation, metres per axis (standard deviation).
+    pub noise_translation_m: f64,
+    pub seed: u64,
+}
+
+impl SyntheticSpec {
+    /// Noise-free relative poses; rotations of ~0.05 degrees, translations of ~2 m.
+    pub fn exact(nodes: usize, topology: Topology, seed: u64) -> Self {
+        SyntheticSpec {
+            nodes,
+            topology,
+            rotation_spread_deg: 0.05,
+            translation_spread_m: 2.0,
+            noise_rotation_deg: 0.0,
+            noise_translation_m: 0.0,
+            seed,
+        }
+    }
+
+    /// As [`SyntheticSpec::exact`] with noise on every edge.
+    pub fn noisy(
+        nodes: usize,
+        topology: Topology,
+        seed: u64,
+        rotation_deg: f64,
+        translation_m: f64,
+    ) -> Self {
+        SyntheticSpec {
+            noise_rotation_deg: rotation_deg,
+            noise_translation_m: translation_m,
+            ..Self::exact(nodes, topology, seed)
+        }
+    }
+}
+
+/// A generated graph and the poses it was made from.
+#[derive(Clone, Debug)]
+pub struct SyntheticGraph {
+    pub graph: PoseGraph,
+    pub truth: Vec<Matrix4<f64>>,
+}
+
+/// Builds the graph: M_ij = (M_i^-1 M_j) * noise, overlap in [0.3, 0.9], rmse from the
+/// noise level, paper weights.
+pub fn generate(spec: &SyntheticSpec) -> SyntheticGraph {
+    let mut rng = SplitMix64::new(spec.seed);
+    let truth: Vec<Matrix4<f64>> = (0..spec.nodes)
+        .map(|_| {
+            let r = rotation_from_axis_angle(&rng.normal3(spec.rotation_spread_deg.to_radians()));
+            from_parts(&r, &rng.normal3(spec.translation_spread_m))
+        })
+        .collect();
+    let pairs = pairs(spec, &mut rng);
+    let mut edges = Vec::with_capacity(pairs.len());
+    for (i, j) in pairs {
+        let noise_r = rotation_from_axis_angle(&rng.normal3(spec.noise_rotation_deg.to_radians()));
+        let noise = from_parts(&noise_r, &rng.normal3(spec.noise_translation_m));
+        edges.push(Edge {
+            i,
+            j,
+            m_ij: inverse_rigid(&truth[i]) * truth[j] * noise,
+            overlap: 0.3 + 0.6 * rng.uniform(),
+            rmse_m: spec.noise_translation_m * (1.0 + rng.uniform()) + 0.05,
+            weight: 1.0,
+        });
+    }
+    paper_weights(&mut edges);
+    SyntheticGraph {
+        graph: PoseGraph {
+            n: spec.nodes,
+            edges,
+        },
+        truth,
+    }
+}
+
+fn pairs(spec: &SyntheticSpec, rng: &mut SplitMix64) -> Vec<(usize, usize)> {
+    let n = spec.nodes;
+    let mut pairs = Vec::new();
+    match spec.topology {
+        Topology::Chain { reach } => {
+            for i in 0..n {
+                pairs.extend((i + 1..(i + 1 + reach).min(n)).map(|j| (i, j)));
+            }
+        }
+        Topology::Grid { width } => {
+            let height = n.div_ceil(width) as i64;
+            let steps = [(1, 0), (0, 1), (1, 1), (-1, 1), (2, 0), (0, 2)];
+            for i in 0..n {
+                let (col, row) = ((i % width) as i64, (i / width) as i64);
+                for (dc, dr) in steps {
+                    let (c, r) = (col + dc, row + dr);
+                    let j = (r * width as i64 + c) as usize;
+                    if c >= 0 && c < width as i64 && r < height && j < n {
+                        pairs.push((i, j));
+                    }
+                }
+            }
+        }
+        Topology::Random { edges_per_node } => {
+            for i in 0..n {
+                if i + 1 < n {
+                    pairs.push((i, i + 1));
+                }
+                for _ in 1..edges_per_node {
+                    let j = rng.below(n);
+                    if j != i {
+                        pairs.push((i, j));
+                    }
+                }
+            }
+        }
+    }
+    pairs
+}
+
+/// Errors of estimated poses against the truth, gauge free: both sets are put in
+/// the mean gauge of each component before comparing.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PoseErrors {
+    pub rotation_rms_deg: f64,
+    pub rotation_max_deg: f64,
+    pub translation_rms_m: f64,
+    pub translation_max_m: f64,
+}
+
+pub fn pose_errors(
+    estimate: &[Matrix4<f64>],
+    truth: &[Matrix4<f64>],
+    components: &Components,
+) -> PoseErrors {
+    let (mut est, mut tru) = (estimate.to_vec(), truth.to_vec());
+    for members in &components.members {
+        fix_gauge(&mut est, members, None);
+        fix_gauge(&mut tru, members, None);
+    }
+    let mut errors = PoseErrors {
+        rotation_rms_deg: 0.0,
+        rotation_max_deg: 0.0,
+        translation_rms_m: 0.0,
+        translation_max_m: 0.0,
+    };
+    for (a, b) in est.iter().zip(&tru) {
+        let angle = rotation_between_deg(&rotation(a), &rotation(b));
+        let offset = (translation(a) - translation(b)).norm();
+        errors.rotation_rms_deg += angle * angle;
+        errors.translation_rms_m += offset * offset;
+        errors.rotation_max_deg = errors.rotation_max_deg.max(angle);
+        errors.translation_max_m = errors.translation_max_m.max(offset);
+    }
+    let n = est.len().max(1) as f64;
+    errors.rotation_rms_deg = (errors.rotation_rms_deg / n).sqrt();
+    errors.translation_rms_m = (errors.translation_rms_m / n).sqrt();
+    errors
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn topologies_have_the_stated_shape() {
+        let grid = generate(&SyntheticSpec::exact(100, Topology::Grid { width: 10 }, 1));
+        // 10x10 tiles: 90 right + 90 down + 81 + 81 diagonals + 80 + 80 two-step.
+        assert_eq!(grid.graph.edges.len(), 502);
+        let chain = generate(&SyntheticSpec::exact(10, Topology::Chain { reach: 2 }, 1));
+        assert_eq!(chain.graph.edges.len(), 17);
+        let random = generate(&SyntheticSpec::exact(
+            1000,
+            Topology::Random { edges_per_node: 6 },
+            1,
+        ));
+        let per_node = random.graph.edges.len() as f64 / 1000.0;
+        assert!((5.9..=6.0).contains(&per_node), "{per_node}");
+        assert_eq!(random.graph.components().members.len(), 1);
+        assert_eq!(random.graph.validate(), Ok(()));
+    }
+
+    #[test]
+    fn exact_edges_are_consistent_with_the_truth() {
+        let g = generate(&SyntheticSpec::exact(30, Topology::Grid { width: 6 }, 2));
+        for e in &g.graph.edges {
+            let expected = inverse_rigid(&g.truth[e.i]) * g.truth[e.j];
+            assert!((e.m_ij - expected).abs().max() < 1e-12);
+        }
+        let errors = pose_errors(&g.truth, &g.truth, &g.graph.components());
+        assert_eq!(errors.translation_max_m, 0.0);
+    }
+
+    #[test]
+    fn errors_ignore_a_global_rigid_motion() {
+        let g = generate(&SyntheticSpec::exact(
+            40,
+            Topology::Random { edges_per_node: 4 },
+            5,
+        ));
+        let motion = from_parts(
+            &rotation_from_axis_angle(&Vector3::new(0.1, -0.2, 0.3)),
+            &Vector3::new(5.0, -7.0, 1.0),
+        );
+        let moved: Vec<_> = g.truth.iter().map(|m| motion * m).collect();
+        let errors = pose_errors(&moved, &g.truth, &g.graph.components());
+        assert!(
+            errors.rotation_max_deg < 1e-10 && errors.translation_max_m < 1e-10,
+            "{errors:?}"
+        );
+    }
+}

@@ -1,0 +1,68 @@
+//! Query points for DSM-ICP: valid pixels of the moving DSM inside the overlap,
+//! spatially stratified (one per cell of a regular grid) and seeded, so the same
+//! inputs always give the same samples.
+
+use nalgebra::Vector3;
+
+use crate::grid::Grid;
+use crate::nn::PixelFrame;
+use crate::rng::SplitMix64;
+
+/// The sampled query points, in the local frame.
+#[derive(Clone, Debug, Default)]
+pub struct Samples {
+    pub points: Vec<Vector3<f64>>,
+    /// Cells tried (a cell whose pixels are all no-data gives no point).
+    pub cells: usize,
+}
+
+/// Pixel rectangle [col0, col1) x [row0, row1) of `grid` covered by the world
+/// box [min_x, min_y, max_x, max_y]; None when it is empty.
+pub fn pixel_window<G: Grid + ?Sized>(grid: &G, world_box: &[f64; 4]) -> Option<[i64; 4]> {
+    let gt = grid.geotransform();
+    let (c0, r0) = gt.world_to_pixel(world_box[0], world_box[3]);
+    let (c1, r1) = gt.world_to_pixel(world_box[2], world_box[1]);
+    let col0 = (c0.ceil() as i64).max(0);
+    let row0 = (r0.ceil() as i64).max(0);
+    let col1 = (c1.floor() as i64).min(grid.width());
+    let row1 = (r1.floor() as i64).min(grid.height());
+    (col1 > col0 && row1 > row0).then_some([col0, row0, col1, row1])
+}
+
+/// About `count` valid pixels of `grid` inside `world_box`, one per stratum.
+pub fn sample_overlap<G: Grid + ?Sized>(
+    grid: &mut G,
+    frame: &PixelFrame,
+    world_box: &[f64; 4],
+    count: usize,
+    seed: u64,
+) -> Samples {
+    let Some([col0, row0, col1, row1]) = pixel_window(grid, world_box) else {
+        return Samples::default();
+    };
+    let area = ((col1 - col0) * (row1 - row0)) as f64;
+    let cell = ((area / count.max(1) as f64).sqrt().floor() as i64).max(1);
+    let mut rng = SplitMix64::new(seed);
+    let mut samples = Samples::default();
+    let mut row = row0;
+    while row < row1 {
+        let cell_h = cell.min(row1 - row);
+        let mut col = col0;
+        while col < col1 {
+            let cell_w = cell.min(col1 - col);
+            samples.cells += 1;
+            for _attempt in 0..4 {
+                let c = col + rng.below(cell_w as u64) as i64;
+                let r = row + rng.below(cell_h as u64) as i64;
+                let h = grid.get(c, r);
+                if !h.is_nan() {
+                    samples.points.push(frame.pixel_point(c, r, h));
+                    break;
+                }
+            }
+            col += cell;
+        }
+        row += cell;
+    }
+    samples
+}
