@@ -132,7 +132,8 @@ def main():
         return 2
 
     print(f"store {args.store}: {len(cat['dsms'])} DSMs, zarr-python {zarr.__version__}, rasterio {rasterio.__version__}")
-    print(f"{'id':<24} {'level':>5} {'shape':>13} {'chunks':>9} {'valid px':>11} {'mismatch':>9} {'max |d|':>9}  status")
+    idw = max([2] + [len(i) for i in cat["dsms"]])
+    print(f"{'id':<{idw}} {'level':>5} {'shape':>13} {'chunks':>9} {'valid px':>11} {'mismatch':>9} {'max |d|':>9}  status")
     failures = 0
     for dsm_id in cat["dsms"]:
         group = root[dsm_id]
@@ -140,11 +141,11 @@ def main():
         for row in check_dsm(group, meta, args.rows):
             if "problem" in row:
                 failures += 1
-                print(f"{dsm_id:<24} catalog mismatch: {row['problem']}")
+                print(f"{dsm_id:<{idw}} catalog mismatch: {row['problem']}")
                 continue
             failures += 0 if row["ok"] else 1
             print(
-                f"{dsm_id:<24} {row['level']:>5} {row['shape']:>13} {row['chunks']:>9} {row['valid']:>11} "
+                f"{dsm_id:<{idw}} {row['level']:>5} {row['shape']:>13} {row['chunks']:>9} {row['valid']:>11} "
                 f"{row['mismatches']:>9} {row['max_diff']:>9.2g}  {'ok' if row['ok'] else 'MISMATCH'}"
             )
     print("all arrays match" if failures == 0 else f"{failures} mismatching arrays or attributes")

@@ -78,8 +78,9 @@ fn summary_line(o: &DsmOutcome) -> String {
     } else {
         format!("{:.1} s", o.seconds)
     };
+    let plural = if o.levels == 1 { "" } else { "s" };
     format!(
-        "{action} {}: {} x {} px, {valid_pct:.1}% valid, {} levels, {:.1} MB stored, {tail}",
+        "{action} {}: {} x {} px, {valid_pct:.1}% valid, {} level{plural}, {:.1} MB stored, {tail}",
         o.id,
         o.width,
         o.height,

@@ -106,7 +106,7 @@ pub struct DsmMeta {
     pub footprint: [f64; 4],
     pub levels: Vec<LevelMeta>,
     pub source: SourceInfo,
-    /// Sample type of the source file, e.g. "F32", "I16".
+    /// Sample type of the source file, GDAL names: "Float32", "Int16", ...
     pub source_dtype: String,
     pub storage: StorageSettings,
 }
@@ -288,7 +288,7 @@ pub(crate) mod tests {
                 size: 42,
                 mtime_unix_ns: 1_700_000_000_123_456_789,
             },
-            source_dtype: "F32".into(),
+            source_dtype: "Float32".into(),
             storage: StorageSettings::default(),
         }
     }

@@ -17,11 +17,11 @@ use zarrs::filesystem::FilesystemStore;
 
 use super::catalog::{self, DsmMeta, RootAttrs, StorageSettings, STORE_VERSION};
 use super::files::{self, InputFile, TMP_TAG};
+use super::plan::{check_options, create_store, plan_all, read_existing, validate_all};
 use super::pyramid::{level_shapes, PyramidWriter};
 use super::source::{open_geotiff, RowSource, SourceError, SourceOpener};
 use super::stats::HeightAccumulator;
 use super::StoreError;
-use crate::raster::Crs;
 
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct IngestOptions {
@@ -121,8 +121,7 @@ pub fn ingest_with(
 ) -> Result<IngestReport, IngestError> {
     check_options(&options.storage)?;
     let files = files::expand_inputs(inputs).map_err(IngestError::BadInput)?;
-    let existing = read_existing(store_path)?;
-    let mut attrs = match existing {
+    let mut attrs = match read_existing(store_path)? {
         Some(attrs) => files::recover(store_path, attrs)?,
         None => RootAttrs {
             version: STORE_VERSION,
@@ -130,63 +129,24 @@ pub fn ingest_with(
             dsms: Vec::new(),
         },
     };
-
-    // Plan: skip unchanged, validate every header before writing anything.
-    let mut outcomes = Vec::new();
-    let mut todo: Vec<(InputFile, DsmAction)> = Vec::new();
-    for file in files {
-        match plan_one(store_path, &attrs, &file, options.force)? {
-            DsmAction::Skipped => {
-                let meta = catalog::read_dsm(&store_path.join(&file.id))?;
-                let outcome = skipped_outcome(store_path, &file, &meta);
-                progress.dsm_finished(&outcome);
-                outcomes.push(outcome);
-            }
-            action => todo.push((file, action)),
-        }
+    let plan = plan_all(store_path, &attrs, files, options.force)?;
+    let (mut outcomes, todo) = (plan.skipped, plan.todo);
+    for outcome in &outcomes {
+        progress.dsm_finished(outcome);
     }
-    let mut collection_crs: Option<(Crs, String)> = attrs
-        .crs
-        .clone()
-        .map(|c| (c, format!("the store {}", store_path.display())));
-    for (file, _) in &todo {
-        let source = open(&file.path)?;
-        validate(source.raster(), &file.path, &mut collection_crs)?;
-    }
-
+    validate_all(store_path, &attrs, &todo, open)?;
     if !todo.is_empty() {
         create_store(store_path, &attrs)?;
-    }
-    let fs = Arc::new(
-        FilesystemStore::new(store_path).map_err(|e| StoreError::zarr(store_path.display(), e))?,
-    );
-    for (file, action) in todo {
-        let started = Instant::now();
-        let mut source = open(&file.path)?;
-        let meta = write_dsm(
-            &fs,
-            store_path,
-            &file,
-            source.as_mut(),
-            &options.storage,
-            progress,
-        )?;
-        let tmp = store_path.join(tmp_name(&file.id));
-        files::commit(store_path, &mut attrs, &file.id, &tmp, &meta.crs)?;
-        let outcome = DsmOutcome {
-            id: file.id.clone(),
-            path: file.path.clone(),
-            action,
-            width: meta.width,
-            height: meta.height,
-            levels: meta.levels.len(),
-            valid_count: meta.valid_count,
-            stored_bytes: files::dir_bytes(&store_path.join(&file.id)),
-            seconds: started.elapsed().as_secs_f64(),
-        };
-        tracing::info!(dsm = %file.id, seconds = outcome.seconds, "dsm ingested");
-        progress.dsm_finished(&outcome);
-        outcomes.push(outcome);
+        let fs = FilesystemStore::new(store_path)
+            .map_err(|e| StoreError::zarr(store_path.display(), e))?;
+        let fs = Arc::new(fs);
+        for (file, action) in todo {
+            let outcome = ingest_one(
+                &fs, store_path, &mut attrs, file, action, options, progress, open,
+            )?;
+            progress.dsm_finished(&outcome);
+            outcomes.push(outcome);
+        }
     }
     Ok(IngestReport {
         store: store_path.to_path_buf(),
@@ -194,137 +154,55 @@ pub fn ingest_with(
     })
 }
 
-fn check_options(s: &StorageSettings) -> Result<(), IngestError> {
-    if !(16..=8192).contains(&s.chunk) {
-        return Err(IngestError::BadInput(format!(
-            "chunk size {} px is out of range (16 ..= 8192)",
-            s.chunk
-        )));
-    }
-    Ok(())
+/// Write one DSM, commit it (rename + catalog) and describe what was done.
+#[allow(clippy::too_many_arguments)]
+fn ingest_one(
+    fs: &Arc<FilesystemStore>,
+    store_path: &Path,
+    attrs: &mut RootAttrs,
+    file: InputFile,
+    action: DsmAction,
+    options: &IngestOptions,
+    progress: &dyn IngestProgress,
+    open: &SourceOpener,
+) -> Result<DsmOutcome, IngestError> {
+    let started = Instant::now();
+    let mut source = open(&file.path)?;
+    let meta = write_dsm(
+        fs,
+        store_path,
+        &file,
+        source.as_mut(),
+        &options.storage,
+        progress,
+    )?;
+    let tmp = store_path.join(tmp_name(&file.id));
+    files::commit(store_path, attrs, &file.id, &tmp, &meta.crs)?;
+    let outcome = DsmOutcome {
+        stored_bytes: files::dir_bytes(&store_path.join(&file.id)),
+        seconds: started.elapsed().as_secs_f64(),
+        ..outcome_of(&file, action, &meta)
+    };
+    tracing::info!(dsm = %file.id, seconds = outcome.seconds, "dsm ingested");
+    Ok(outcome)
 }
 
 fn tmp_name(id: &str) -> String {
     format!("{id}{TMP_TAG}{}", std::process::id())
 }
 
-/// The catalog of an existing store, None when the path does not exist yet
-/// (or is an empty directory).
-fn read_existing(store: &Path) -> Result<Option<RootAttrs>, IngestError> {
-    if store.join("zarr.json").exists() {
-        return catalog::read_root(store)
-            .map(Some)
-            .map_err(|e| IngestError::BadInput(e.to_string()));
-    }
-    match std::fs::read_dir(store) {
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-        Err(e) => Err(IngestError::BadInput(format!(
-            "{}: cannot use as a store: {e}",
-            store.display()
-        ))),
-        Ok(mut entries) => match entries.next() {
-            None => Ok(None),
-            Some(_) => Err(IngestError::BadInput(format!(
-                "{}: exists, is not empty and is not a dsmstream store (no zarr.json)",
-                store.display()
-            ))),
-        },
-    }
-}
-
-fn create_store(store: &Path, attrs: &RootAttrs) -> Result<(), IngestError> {
-    let cannot = |e: &dyn std::fmt::Display| {
-        IngestError::BadInput(format!("{}: cannot write the store: {e}", store.display()))
-    };
-    std::fs::create_dir_all(store).map_err(|e| cannot(&e))?;
-    if !store.join("zarr.json").exists() {
-        catalog::write_root(store, attrs).map_err(|e| cannot(&e))?;
-    }
-    Ok(())
-}
-
-/// New, changed, unchanged, or a clash with a same-id DSM from another file.
-fn plan_one(
-    store: &Path,
-    attrs: &RootAttrs,
-    file: &InputFile,
-    force: bool,
-) -> Result<DsmAction, IngestError> {
-    if !attrs.dsms.contains(&file.id) {
-        return Ok(DsmAction::Ingested);
-    }
-    let old = catalog::read_dsm(&store.join(&file.id))?;
-    if force {
-        return Ok(DsmAction::Replaced);
-    }
-    let now = files::source_info(&file.path)?;
-    if old.source.path != now.path {
-        return Err(IngestError::BadInput(format!(
-            "{}: DSM id \"{}\" is already in the store, from {}; rename the file or use --force to replace it",
-            file.path.display(),
-            file.id,
-            old.source.path
-        )));
-    }
-    if old.source == now {
-        Ok(DsmAction::Skipped)
-    } else {
-        tracing::info!(dsm = %file.id, "source changed");
-        Ok(DsmAction::Replaced)
-    }
-}
-
-fn skipped_outcome(store: &Path, file: &InputFile, meta: &DsmMeta) -> DsmOutcome {
+/// The outcome fields known from the metadata (bytes and seconds left at zero).
+pub(super) fn outcome_of(file: &InputFile, action: DsmAction, meta: &DsmMeta) -> DsmOutcome {
     DsmOutcome {
         id: file.id.clone(),
         path: file.path.clone(),
-        action: DsmAction::Skipped,
+        action,
         width: meta.width,
         height: meta.height,
         levels: meta.levels.len(),
         valid_count: meta.valid_count,
-        stored_bytes: files::dir_bytes(&store.join(&file.id)),
+        stored_bytes: 0,
         seconds: 0.0,
-    }
-}
-
-/// Header checks; `collection` is the CRS every DSM must share and where it came from.
-fn validate(
-    raster: &super::source::SourceRaster,
-    path: &Path,
-    collection: &mut Option<(Crs, String)>,
-) -> Result<(), IngestError> {
-    let file = path.display();
-    let bad = |msg: String| Err(IngestError::BadInput(format!("{file}: {msg}")));
-    if raster.width == 0 || raster.height == 0 {
-        return bad(format!(
-            "empty raster ({} x {} px)",
-            raster.width, raster.height
-        ));
-    }
-    if raster.crs.is_geographic {
-        return bad(format!(
-            "geographic CRS {} (degrees) is not a metric frame; reproject to a projected CRS first, e.g. gdalwarp -t_srs EPSG:326xx",
-            raster.crs.label()
-        ));
-    }
-    if !raster.geotransform.is_north_up() {
-        return bad(format!(
-            "geotransform {:?} is rotated, sheared or not north-up; only north-up rasters are supported (gdalwarp can resample it)",
-            raster.geotransform.0
-        ));
-    }
-    match collection {
-        Some((crs, origin)) if !crs.same_as(&raster.crs) => bad(format!(
-            "CRS {} differs from the collection's CRS {} (from {origin}); reproject it to the same CRS",
-            raster.crs.label(),
-            crs.label()
-        )),
-        Some(_) => Ok(()),
-        None => {
-            *collection = Some((raster.crs.clone(), file.to_string()));
-            Ok(())
-        }
     }
 }
 

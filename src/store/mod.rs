@@ -16,6 +16,7 @@ pub mod catalog;
 mod files;
 pub mod grid;
 pub mod ingest;
+mod plan;
 mod pyramid;
 pub mod source;
 mod stats;

@@ -20,7 +20,7 @@ pub struct SourceRaster {
     pub crs: Crs,
     /// Declared no-data value (already mapped to NaN by `read_rows`).
     pub nodata: Option<f64>,
-    /// Sample type of the file, e.g. "F32", "I16".
+    /// Sample type of the file, GDAL names: "Float32", "Int16", ...
     pub dtype: String,
 }
 
@@ -63,7 +63,7 @@ impl GeoTiffSource {
             geotransform: info.geotransform,
             crs: info.crs.clone(),
             nodata: info.nodata,
-            dtype: format!("{:?}", info.sample_type),
+            dtype: info.sample_type.gdal_name().to_string(),
         };
         Ok(GeoTiffSource { reader, raster })
     }

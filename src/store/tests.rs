@@ -25,8 +25,8 @@ fn surface(w: u64, h: u64, seed: u32) -> Vec<f32> {
         for c in 0..w {
             let (x, y) = (c as f32, r as f32);
             let hole = (x - 30.0).powi(2) + (y - 20.0).powi(2) < 80.0
-                || (c + seed as u64) % 37 == 0
-                || (r * 13 + c * 7 + seed as u64) % 23 == 0;
+                || (c + seed as u64).is_multiple_of(37)
+                || (r * 13 + c * 7 + seed as u64).is_multiple_of(23);
             v.push(if hole {
                 f32::NAN
             } else {
@@ -62,7 +62,7 @@ impl Inputs {
             geotransform: GeoTransform::north_up(630_000.0, 4_833_000.0, 0.5, 0.5),
             crs,
             nodata: Some(-9999.0),
-            dtype: "F32".into(),
+            dtype: "Float32".into(),
         };
         self.rasters
             .insert(path.clone(), MemSource { raster, data });
@@ -260,16 +260,16 @@ fn store_rerun_skips_force_replaces_changed_source_replaces() {
     let store_path = store_dir.path().join("c.zarr");
     let mut opts = options(16);
     assert_eq!(
-        run(&inputs, &[a.clone()], &store_path, &opts).unwrap(),
+        run(&inputs, std::slice::from_ref(&a), &store_path, &opts).unwrap(),
         [DsmAction::Ingested]
     );
     assert_eq!(
-        run(&inputs, &[a.clone()], &store_path, &opts).unwrap(),
+        run(&inputs, std::slice::from_ref(&a), &store_path, &opts).unwrap(),
         [DsmAction::Skipped]
     );
     opts.force = true;
     assert_eq!(
-        run(&inputs, &[a.clone()], &store_path, &opts).unwrap(),
+        run(&inputs, std::slice::from_ref(&a), &store_path, &opts).unwrap(),
         [DsmAction::Replaced]
     );
     opts.force = false;
@@ -278,7 +278,7 @@ fn store_rerun_skips_force_replaces_changed_source_replaces() {
     let new_data = surface(30, 30, 9);
     inputs.rasters.get_mut(&a).unwrap().data = new_data.clone();
     assert_eq!(
-        run(&inputs, &[a.clone()], &store_path, &opts).unwrap(),
+        run(&inputs, std::slice::from_ref(&a), &store_path, &opts).unwrap(),
         [DsmAction::Replaced]
     );
     let store = Store::open(&store_path).unwrap();
@@ -319,7 +319,13 @@ fn store_refuses_bad_inputs_before_writing() {
     let good = inputs.add("good.tif", 30, 30, utm(26917), surface(30, 30, 5));
     let store_dir = tempfile::tempdir().unwrap();
     let store_path = store_dir.path().join("c.zarr");
-    run(&inputs, &[good.clone()], &store_path, &options(16)).unwrap();
+    run(
+        &inputs,
+        std::slice::from_ref(&good),
+        &store_path,
+        &options(16),
+    )
+    .unwrap();
     let before = snapshot(&store_path);
 
     let geo = inputs.add(
@@ -384,7 +390,13 @@ fn store_refuses_unusable_store_paths() {
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("plain_file");
     std::fs::write(&file, b"x").unwrap();
-    let err = run(&inputs, &[good.clone()], &file.join("c.zarr"), &options(16)).unwrap_err();
+    let err = run(
+        &inputs,
+        std::slice::from_ref(&good),
+        &file.join("c.zarr"),
+        &options(16),
+    )
+    .unwrap_err();
     assert!(
         err.is_bad_input() && err.to_string().contains("plain_file"),
         "{err}"
@@ -465,4 +477,13 @@ fn store_from_raw_rasters_for_check_zarr() {
     opts.storage.min_overview_px = 256;
     let actions = run(&inputs, &tifs, &store, &opts).unwrap();
     eprintln!("{actions:?}");
+}
+
+#[test]
+fn store_types_cross_threads() {
+    fn shared<T: Send + Sync>() {}
+    fn owned<T: Send>() {}
+    shared::<Store>();
+    shared::<ChunkCache>();
+    owned::<StoreGrid<'static>>();
 }
