@@ -13,6 +13,7 @@
 //! ```
 //! Memory is the cache budget plus a small constant: nothing loads a whole DSM.
 
+pub mod align;
 pub mod averaging;
 pub mod cache;
 pub mod error;

@@ -1,8 +1,129 @@
-//! `dsmstream align` (in progress).
+//! `dsmstream align <store> --out poses.json`: every overlapping pair through
+//! DSM-ICP, the scene graph, motion averaging (or `--graph mst`), poses.json.
+
+use std::path::PathBuf;
+
+use dsmstream::align::{align, AlignConfig, AlignError};
+use dsmstream::cache::ChunkCache;
+use dsmstream::pipeline::PipelineConfig;
+use dsmstream::poses::GraphKind;
+use dsmstream::InputError;
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+
+use super::pair::{open_store, IcpArgs};
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug)]
+pub enum GraphArg {
+    /// Every overlapping pair, motion averaging (the paper's method).
+    Full,
+    /// Kruskal maximum-overlap spanning tree, poses chained from the root (baseline).
+    Mst,
+}
 
 #[derive(clap::Args, Debug)]
-pub struct Args {}
+pub struct Args {
+    /// The store directory.
+    pub store: PathBuf,
+    /// Where to write poses.json (written to a temporary name, then renamed).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Chunk cache budget in MiB, shared by all workers.
+    #[arg(long, default_value_t = 256)]
+    pub cache_mb: usize,
+    /// ICP worker threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// full (motion averaging) or mst (greedy spanning tree baseline).
+    #[arg(long, value_enum, default_value = "full")]
+    pub graph: GraphArg,
+    /// Pairs whose overlap score s_ij is below this give no edge.
+    #[arg(long, default_value_t = 0.1)]
+    pub min_overlap: f64,
+    /// Keep this DSM fixed (identity pose) instead of the mean gauge.
+    #[arg(long)]
+    pub anchor: Option<String>,
+    /// Skip pairs already in the journal (<out>.journal) of an interrupted run.
+    #[arg(long)]
+    pub resume: bool,
+    #[command(flatten)]
+    pub icp: IcpArgs,
+}
 
-pub fn run(_args: Args) -> anyhow::Result<()> {
-    anyhow::bail!("`align` is not built yet")
+pub fn run(args: Args) -> anyhow::Result<()> {
+    if !(0.0..=1.0).contains(&args.min_overlap) {
+        return Err(InputError::new("--min-overlap must be within [0, 1]").into());
+    }
+    let threads = args.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    if threads == 0 {
+        return Err(InputError::new("--threads must be at least 1").into());
+    }
+    let config = AlignConfig {
+        pipeline: PipelineConfig { threads, icp: args.icp.to_config()?, min_overlap: args.min_overlap },
+        graph: match args.graph {
+            GraphArg::Full => GraphKind::Full,
+            GraphArg::Mst => GraphKind::Mst,
+        },
+        anchor: args.anchor.clone(),
+        resume: args.resume,
+        output: args.out.clone(),
+    };
+    let store = open_store(&args.store)?;
+    let cache = ChunkCache::new(args.cache_mb.max(1) << 20);
+    let bar = ProgressBar::with_draw_target(Some(0), ProgressDrawTarget::stderr());
+    bar.set_style(
+        ProgressStyle::with_template("{bar:30} {pos}/{len} pairs {per_sec} eta {eta} {msg}").expect("valid template"),
+    );
+    if tracing::enabled!(tracing::Level::ERROR) && !tracing::enabled!(tracing::Level::WARN) {
+        bar.set_draw_target(ProgressDrawTarget::hidden());
+    }
+    let started = std::time::Instant::now();
+    let outcome = align(&store, &cache, &config, &mut |_, done, total| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+        let s = cache.stats();
+        let lookups = (s.hits + s.misses).max(1);
+        bar.set_message(format!("cache hit {:.0}%", 100.0 * s.hits as f64 / lookups as f64));
+    });
+    bar.finish_and_clear();
+    let outcome = outcome.map_err(|e| match e {
+        AlignError::Input(m) => anyhow::Error::new(InputError::new(m)),
+        other => anyhow::Error::new(other),
+    })?;
+    cache.log_stats();
+    outcome.poses.write(&args.out)?;
+    let failed: Vec<String> = outcome
+        .records
+        .iter()
+        .filter(|r| r.m_world.is_none() && r.overlap >= args.min_overlap)
+        .map(|r| format!("{}-{} ({})", r.reference, r.moving, r.note.clone().unwrap_or_default()))
+        .collect();
+    for f in &failed {
+        eprintln!("warning: pair {f} gave no edge");
+    }
+    if outcome.components.len() > 1 {
+        eprintln!("warning: the scene graph has {} disconnected components, each solved on its own:", outcome.components.len());
+        for c in &outcome.components {
+            eprintln!("  {}", c.join(", "));
+        }
+    }
+    let p = &outcome.poses;
+    let kept: Vec<&dsmstream::poses::EdgeEntry> = p.edges.iter().filter(|e| !e.dropped).collect();
+    let mean_rmse = kept.iter().map(|e| e.rmse_m).sum::<f64>() / kept.len().max(1) as f64;
+    let max_res = kept.iter().map(|e| e.residual_m).fold(0.0, f64::max);
+    println!(
+        "aligned {} DSMs: {} edges ({} dropped), {} pairs without edge, graph {}, gauge {}, {:.1} s",
+        p.poses.len(),
+        p.edges.len(),
+        p.edges.len() - kept.len(),
+        failed.len(),
+        match p.graph {
+            GraphKind::Full => "full",
+            GraphKind::Mst => "mst",
+        },
+        p.gauge.label(),
+        started.elapsed().as_secs_f64()
+    );
+    println!("mean pairwise ICP rmse {mean_rmse:.3} m; largest edge residual after averaging {max_res:.3} m");
+    println!("poses written to {}", args.out.display());
+    Ok(())
 }

@@ -1,0 +1,170 @@
+//! `align` as a library call: plan the pairs, stream them through the pipeline,
+//! build the scene graph and solve the poses (motion averaging, or the greedy
+//! spanning-tree baseline), in a local frame near the data, then hand back the
+//! poses.json model in world coordinates.
+
+use std::path::PathBuf;
+
+use nalgebra::{Matrix4, Vector3};
+
+use crate::averaging::{average, edge_residuals, fix_gauge, AveragingOptions, Gauge};
+use crate::cache::ChunkCache;
+use crate::graph::{chain_poses, mst, paper_weights, Edge, PoseGraph};
+use crate::journal::{EdgeRecord, Journal, JournalError};
+use crate::pipeline::{self, PairTask, PipelineConfig};
+use crate::plan::{candidate_pairs, Footprint};
+use crate::poses::rigid::{to_local, to_world};
+use crate::poses::{EdgeEntry, GaugeLabel, GraphKind, PoseEntry, PosesFile, PosesSummary};
+use crate::store::Store;
+
+/// Everything `align` needs, validated by the CLI.
+#[derive(Clone, Debug)]
+pub struct AlignConfig {
+    pub pipeline: PipelineConfig,
+    pub graph: GraphKind,
+    /// Id of the DSM that stays fixed; None = mean gauge.
+    pub anchor: Option<String>,
+    pub resume: bool,
+    pub output: PathBuf,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum AlignError {
+    /// Bad input: the message says what to change.
+    #[error("{0}")]
+    Input(String),
+    #[error(transparent)]
+    Journal(#[from] JournalError),
+    #[error("motion averaging failed: {0}")]
+    Averaging(String),
+}
+
+/// The result: the poses file plus the per-pair records (failed ones included).
+pub struct AlignOutcome {
+    pub poses: PosesFile,
+    pub records: Vec<EdgeRecord>,
+    pub components: Vec<Vec<String>>,
+}
+
+pub fn align(
+    store: &Store,
+    cache: &ChunkCache,
+    config: &AlignConfig,
+    progress: &mut dyn FnMut(&EdgeRecord, usize, usize),
+) -> Result<AlignOutcome, AlignError> {
+    let dsms = store.dsms();
+    let root = store.root().display();
+    match dsms.len() {
+        0 => return Err(AlignError::Input(format!("{root}: the store holds no DSM; run `dsmstream ingest` first"))),
+        1 => return Err(AlignError::Input(format!("{root}: the store holds one DSM; align needs at least two"))),
+        _ => {}
+    }
+    let anchor = match &config.anchor {
+        Some(id) => Some(store.find(id).ok_or_else(|| AlignError::Input(format!("{root}: --anchor: no DSM with id '{id}'")))?),
+        None => None,
+    };
+    let footprints: Vec<Footprint> = dsms.iter().enumerate().map(|(index, d)| Footprint { index, bounds: d.footprint }).collect();
+    let tasks: Vec<PairTask> = candidate_pairs(&footprints).into_iter().map(|(reference, moving)| PairTask { reference, moving }).collect();
+    if tasks.is_empty() {
+        return Err(AlignError::Input(format!("{root}: no two DSM footprints overlap")));
+    }
+    let journal_path = Journal::path_for(&config.output);
+    let settings = format!("{:?} min_overlap={}", config.pipeline.icp, config.pipeline.min_overlap);
+    let (mut journal, done) = if config.resume {
+        Journal::resume(&journal_path, &settings)?
+    } else {
+        (Journal::create(&journal_path, &settings)?, Vec::new())
+    };
+    let records = pipeline::run(store, cache, &tasks, &config.pipeline, &mut journal, done, progress)?;
+    let usable: Vec<&EdgeRecord> = records.iter().filter(|r| r.m_world.is_some() && r.status.is_some_and(|s| matches!(s, crate::icp::IcpStatus::Converged | crate::icp::IcpStatus::MaxIterations))).collect();
+    if usable.is_empty() {
+        let above = records.iter().filter(|r| r.overlap >= config.pipeline.min_overlap).count();
+        return Err(AlignError::Input(if above == 0 {
+            format!("{root}: no pair overlaps by at least --min-overlap {}", config.pipeline.min_overlap)
+        } else {
+            format!("{root}: none of the {above} overlapping pairs registered (see the log)")
+        }));
+    }
+    let origin = local_origin(store);
+    let mut graph = PoseGraph::new(dsms.len());
+    for r in &usable {
+        let m = r.m_world.expect("usable edges have a matrix");
+        let m_world = Matrix4::from_fn(|a, b| m[a][b]);
+        graph.edges.push(Edge {
+            i: store.find(&r.reference).expect("id from the store"),
+            j: store.find(&r.moving).expect("id from the store"),
+            m_ij: to_local(&m_world, &origin),
+            overlap: r.overlap,
+            rmse_m: r.rmse_m,
+            weight: 0.0,
+        });
+    }
+    paper_weights(&mut graph.edges);
+    let gauge = anchor.map_or(Gauge::Mean, Gauge::Anchor);
+    let options = AveragingOptions { gauge, ..AveragingOptions::default() };
+    let (poses_local, residuals, dropped, components, summary) = match config.graph {
+        GraphKind::Full => {
+            let result = average(&graph, &options).map_err(|e| AlignError::Averaging(e.to_string()))?;
+            let summary = PosesSummary::from_result(&result);
+            (result.poses, result.edge_residuals, result.dropped_edges, result.components, Some(summary))
+        }
+        GraphKind::Mst => {
+            let tree = mst(&graph);
+            let mut poses = chain_poses(&graph, &tree, anchor.unwrap_or(0)).map_err(|e| AlignError::Averaging(e.to_string()))?;
+            let components = graph.components().members;
+            for members in &components {
+                fix_gauge(&mut poses, members, anchor.filter(|a| members.contains(a)));
+            }
+            let residuals = edge_residuals(&graph, &poses);
+            (poses, residuals, Vec::new(), components, None)
+        }
+    };
+    let poses = poses_local
+        .iter()
+        .enumerate()
+        .map(|(k, m)| PoseEntry { id: dsms[k].id.clone(), matrix_world: to_world(m, &origin) })
+        .collect();
+    let edges = graph
+        .edges
+        .iter()
+        .zip(&usable)
+        .enumerate()
+        .map(|(k, (e, r))| EdgeEntry {
+            i: r.reference.clone(),
+            j: r.moving.clone(),
+            overlap: e.overlap,
+            rmse_m: e.rmse_m,
+            weight: e.weight,
+            iterations: r.iterations as u32,
+            inliers: r.inliers as u64,
+            residual_m: residuals[k].translation_m,
+            residual_deg: residuals[k].rotation_deg,
+            dropped: dropped.contains(&k),
+            converged: r.status == Some(crate::icp::IcpStatus::Converged),
+        })
+        .collect();
+    let component_ids: Vec<Vec<String>> = components.iter().map(|c| c.iter().map(|&k| dsms[k].id.clone()).collect()).collect();
+    let poses = PosesFile {
+        crs: store.crs().map(|c| c.label()).unwrap_or_default(),
+        poses,
+        edges,
+        graph: config.graph,
+        gauge: anchor.map_or(GaugeLabel::Mean, |a| GaugeLabel::Anchor(dsms[a].id.clone())),
+        components: (component_ids.len() > 1).then(|| component_ids.clone()),
+        summary,
+    };
+    Ok(AlignOutcome { poses, records, components: component_ids })
+}
+
+/// Centre of all footprints at the mean height: edges and poses are solved
+/// relative to it (UTM coordinates are ~10^6 m).
+fn local_origin(store: &Store) -> Vector3<f64> {
+    let n = store.dsms().len() as f64;
+    let (mut x, mut y, mut z) = (0.0, 0.0, 0.0);
+    for d in store.dsms() {
+        x += (d.footprint[0] + d.footprint[2]) / 2.0 / n;
+        y += (d.footprint[1] + d.footprint[3]) / 2.0 / n;
+        z += d.height_stats.mean / n;
+    }
+    Vector3::new(x.round(), y.round(), z.round())
+}
