@@ -1,1 +1,0 @@
-//! Tiled Cloud-Optimized GeoTIFF writer (in progress).

@@ -1,0 +1,429 @@
+//! The tile cutter: overlapping DSM tiles of the synthetic world in a `chain`
+//! (1 x N) or `grid` (rows x cols) layout, each seen through a known rigid
+//! perturbation and with its own noise, outliers, voids and changed buildings.
+//!
+//! Frames. `m_world` (truth.json's `matrix_world`) maps a point of the written,
+//! perturbed tile, in CRS coordinates (x', y', h'), to its true position:
+//! p = M p'. The tile therefore shows the world moved by M^-1. For the pixel
+//! centre (x', y') the written height h' is the one that puts M (x', y', h') on
+//! the true surface S:
+//!
+//! ```text
+//!   (x, y, z) = M (x', y', h'),   z = S(x, y)
+//!   => h' = (S(x, y) - m20 x' - m21 y' - m23) / m22
+//! ```
+//!
+//! x and y depend on h' only through m02 and m12 (rotations of hundredths of a
+//! degree, ~1e-4), so fixed-point iteration from h' = S(x', y') contracts by that
+//! factor and converges in two or three steps (except exactly at building walls,
+//! where the two candidate heights are a few centimetres apart horizontally).
+//! M rotates about the tile centre at the surface's base elevation:
+//! M = T(c + shift) R T(-c), R = Rz(yaw) Ry(pitch) Rx(roll).
+
+use nalgebra::{Matrix4, Rotation3, Translation3, Vector3};
+use serde::{Deserialize, Serialize};
+
+use super::prng::{derive_seed, hash2, unit_f64, SplitMix64};
+use super::surface::{Sampler, Surface};
+use crate::raster::GeoTransform;
+
+/// Void patches are discs centred in cells of this many pixels.
+const VOID_CELL_PX: i64 = 32;
+
+/// Arrangement of the tiles.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Layout {
+    /// One row of `cols` tiles along x.
+    Chain,
+    /// `rows` x `cols` tiles.
+    Grid,
+}
+
+/// Everything that defines a tile set besides the surface.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct TileSetParams {
+    pub layout: Layout,
+    pub rows: u32,
+    pub cols: u32,
+    pub size_px: u32,
+    pub gsd_m: f64,
+    /// Fraction of a tile's width shared with its neighbour (0.6 = 60 %).
+    pub overlap: f64,
+    /// Top-left corner of tile_00 in CRS metres.
+    pub origin_x_m: f64,
+    pub origin_y_m: f64,
+    pub epsg: u32,
+    pub seed: u64,
+    pub noise_sigma_m: f64,
+    /// Fraction of pixels replaced by spikes of +-5..40 m.
+    pub outlier_fraction: f64,
+    /// Fraction of 32 x 32 px cells holding a void disc (radius 2-14 px).
+    pub void_fraction: f64,
+    pub max_shift_xy_m: f64,
+    pub max_shift_z_m: f64,
+    pub max_rot_deg: f64,
+    /// Changed buildings appear in some tiles and not others.
+    pub changes: bool,
+    /// Leave tile_00 unperturbed (identity matrix_world).
+    pub anchor_first: bool,
+}
+
+impl Default for TileSetParams {
+    fn default() -> Self {
+        TileSetParams {
+            layout: Layout::Chain,
+            rows: 1,
+            cols: 4,
+            size_px: 256,
+            gsd_m: 0.5,
+            overlap: 0.6,
+            origin_x_m: 500_000.0,
+            origin_y_m: 4_800_000.0,
+            epsg: 32617,
+            seed: 1,
+            noise_sigma_m: 0.3,
+            outlier_fraction: 0.02,
+            void_fraction: 0.03,
+            max_shift_xy_m: 3.0,
+            max_shift_z_m: 2.0,
+            max_rot_deg: 0.03,
+            changes: true,
+            anchor_first: false,
+        }
+    }
+}
+
+/// Per-pixel degradations of a rendered tile.
+#[derive(Clone, Copy, Debug)]
+pub struct PixelEffects {
+    pub noise_sigma_m: f64,
+    pub outlier_fraction: f64,
+    pub void_fraction: f64,
+    /// Show the changed buildings of this tile's epoch.
+    pub changes: bool,
+}
+
+impl PixelEffects {
+    /// No noise, outliers, voids or changes: the true surface (moved by M^-1).
+    pub fn none() -> Self {
+        PixelEffects {
+            noise_sigma_m: 0.0,
+            outlier_fraction: 0.0,
+            void_fraction: 0.0,
+            changes: false,
+        }
+    }
+
+    pub fn from_params(p: &TileSetParams) -> Self {
+        PixelEffects {
+            noise_sigma_m: p.noise_sigma_m,
+            outlier_fraction: p.outlier_fraction,
+            void_fraction: p.void_fraction,
+            changes: p.changes,
+        }
+    }
+}
+
+/// One tile to render: its grid, its perturbation and its random seed.
+#[derive(Clone, Debug)]
+pub struct TileSpec {
+    pub id: String,
+    pub index: usize,
+    pub width: u64,
+    pub height: u64,
+    pub geotransform: GeoTransform,
+    /// Maps a written point (x', y', h') to its true position (CRS metres).
+    pub m_world: Matrix4<f64>,
+    /// Seed of the tile's noise, voids and epoch (changed buildings).
+    pub seed: u64,
+    pub shift_m: [f64; 3],
+    pub rot_deg: [f64; 3],
+}
+
+impl TileSpec {
+    /// An unperturbed raster (m_world = identity), e.g. one big DSM.
+    pub fn unperturbed(id: &str, width: u64, height: u64, gt: GeoTransform, seed: u64) -> Self {
+        TileSpec {
+            id: id.to_string(),
+            index: 0,
+            width,
+            height,
+            geotransform: gt,
+            m_world: Matrix4::identity(),
+            seed,
+            shift_m: [0.0; 3],
+            rot_deg: [0.0; 3],
+        }
+    }
+}
+
+/// The tiles of a set, row-major, with their perturbations drawn from the seed.
+pub fn plan_tiles(p: &TileSetParams, pivot_z_m: f64) -> Vec<TileSpec> {
+    let step_px = ((p.size_px as f64) * (1.0 - p.overlap)).round().max(1.0);
+    let step_m = step_px * p.gsd_m;
+    let side_m = p.size_px as f64 * p.gsd_m;
+    let mut tiles = Vec::new();
+    for r in 0..p.rows {
+        for c in 0..p.cols {
+            let index = (r * p.cols + c) as usize;
+            let (x0, y0) = (
+                p.origin_x_m + c as f64 * step_m,
+                p.origin_y_m - r as f64 * step_m,
+            );
+            let mut rng = SplitMix64::new(derive_seed(p.seed, 1000 + index as u64));
+            let mut sym = |max: f64| rng.range(-max, max);
+            let mut shift_m = [
+                sym(p.max_shift_xy_m),
+                sym(p.max_shift_xy_m),
+                sym(p.max_shift_z_m),
+            ];
+            let mut rot_deg = [sym(p.max_rot_deg), sym(p.max_rot_deg), sym(p.max_rot_deg)];
+            if p.anchor_first && index == 0 {
+                shift_m = [0.0; 3];
+                rot_deg = [0.0; 3];
+            }
+            let centre = Vector3::new(x0 + side_m / 2.0, y0 - side_m / 2.0, pivot_z_m);
+            tiles.push(TileSpec {
+                id: format!("tile_{index:02}"),
+                index,
+                width: p.size_px as u64,
+                height: p.size_px as u64,
+                geotransform: GeoTransform::north_up(x0, y0, p.gsd_m, p.gsd_m),
+                m_world: rigid_about(centre, shift_m, rot_deg),
+                seed: derive_seed(p.seed, 2000 + index as u64),
+                shift_m,
+                rot_deg,
+            });
+        }
+    }
+    tiles
+}
+
+/// T(c + shift) R T(-c) with R = Rz(yaw) Ry(pitch) Rx(roll), angles in degrees.
+pub fn rigid_about(centre: Vector3<f64>, shift_m: [f64; 3], rot_deg: [f64; 3]) -> Matrix4<f64> {
+    let [roll, pitch, yaw] = rot_deg.map(f64::to_radians);
+    let r = Rotation3::from_euler_angles(roll, pitch, yaw).to_homogeneous();
+    let shift = Vector3::from(shift_m);
+    Translation3::from(centre + shift).to_homogeneous()
+        * r
+        * Translation3::from(-centre).to_homogeneous()
+}
+
+/// Written height h' at the written pixel centre (x', y'): solves
+/// M (x', y', h') = (x, y, S(x, y)) by fixed-point iteration (module doc).
+pub fn written_height(
+    sampler: &mut Sampler<'_>,
+    m: &Matrix4<f64>,
+    epoch: Option<u64>,
+    xw: f64,
+    yw: f64,
+) -> f64 {
+    let mut surface = |x: f64, y: f64| match epoch {
+        Some(e) => sampler.height_in_epoch(x, y, e),
+        None => sampler.true_height(x, y),
+    };
+    let mut h = surface(xw, yw);
+    if m.is_identity(0.0) {
+        return h;
+    }
+    if h.is_nan() {
+        h = 0.0;
+    }
+    for _ in 0..5 {
+        let x = m[(0, 0)] * xw + m[(0, 1)] * yw + m[(0, 2)] * h + m[(0, 3)];
+        let y = m[(1, 0)] * xw + m[(1, 1)] * yw + m[(1, 2)] * h + m[(1, 3)];
+        let s = surface(x, y);
+        if s.is_nan() {
+            return f64::NAN;
+        }
+        let next = (s - m[(2, 0)] * xw - m[(2, 1)] * yw - m[(2, 3)]) / m[(2, 2)];
+        let done = (next - h).abs() < 1e-6;
+        h = next;
+        if done {
+            break;
+        }
+    }
+    h
+}
+
+/// Render pixels [col0, col0 + w) x [row0, row0 + h) of a tile, row-major;
+/// pixels outside the tile are NaN. Deterministic per pixel, whatever the window.
+pub fn render_window(
+    surface: &Surface,
+    spec: &TileSpec,
+    fx: &PixelEffects,
+    col0: u64,
+    row0: u64,
+    w: u64,
+    h: u64,
+) -> Vec<f32> {
+    let mut sampler = surface.sampler();
+    let epoch = fx.changes.then_some(spec.seed);
+    let void_seed = derive_seed(spec.seed, 1);
+    let noise_seed = derive_seed(spec.seed, 2);
+    let mut out = Vec::with_capacity((w * h) as usize);
+    for row in row0..row0 + h {
+        for col in col0..col0 + w {
+            if col >= spec.width || row >= spec.height {
+                out.push(f32::NAN);
+                continue;
+            }
+            if fx.void_fraction > 0.0
+                && in_void(void_seed, fx.void_fraction, col as i64, row as i64)
+            {
+                out.push(f32::NAN);
+                continue;
+            }
+            let (xw, yw) = spec
+                .geotransform
+                .pixel_to_world(col as f64 + 0.5, row as f64 + 0.5);
+            let mut z = written_height(&mut sampler, &spec.m_world, epoch, xw, yw);
+            if fx.noise_sigma_m > 0.0 || fx.outlier_fraction > 0.0 {
+                let mut rng = SplitMix64::new(hash2(noise_seed, col as i64, row as i64));
+                z += fx.noise_sigma_m * rng.normal();
+                if rng.chance(fx.outlier_fraction) {
+                    let sign = if rng.chance(0.5) { 1.0 } else { -1.0 };
+                    z += sign * rng.range(5.0, 40.0);
+                }
+            }
+            out.push(z as f32);
+        }
+    }
+    out
+}
+
+/// True when pixel (col, row) falls in one of the tile's void discs.
+fn in_void(seed: u64, fraction: f64, col: i64, row: i64) -> bool {
+    let (ci, cj) = (col.div_euclid(VOID_CELL_PX), row.div_euclid(VOID_CELL_PX));
+    for dj in -1..=1 {
+        for di in -1..=1 {
+            let (i, j) = (ci + di, cj + dj);
+            let h = hash2(seed, i, j);
+            if unit_f64(h) >= fraction {
+                continue;
+            }
+            let mut rng = SplitMix64::new(h);
+            let cx = (i * VOID_CELL_PX) as f64 + rng.range(0.0, VOID_CELL_PX as f64);
+            let cy = (j * VOID_CELL_PX) as f64 + rng.range(0.0, VOID_CELL_PX as f64);
+            let r = rng.range(2.0, 14.0);
+            if (col as f64 + 0.5 - cx).powi(2) + (row as f64 + 0.5 - cy).powi(2) < r * r {
+                return true;
+            }
+        }
+    }
+    false
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::synth::surface::SurfaceParams;
+
+    #[test]
+    fn chain_layout_overlaps_and_perturbations_are_bounded() {
+        let p = TileSetParams::default();
+        let tiles = plan_tiles(&p, 200.0);
+        assert_eq!(tiles.len(), 4);
+        let dx = tiles[1].geotransform.0[0] - tiles[0].geotransform.0[0];
+        assert_eq!(dx, 51.0, "256 px * 0.4 = 102 px step at 0.5 m");
+        for t in &tiles {
+            assert!(t.shift_m[0].abs() <= 3.0 && t.shift_m[2].abs() <= 2.0);
+            assert!(t.rot_deg.iter().all(|a| a.abs() <= 0.03));
+            let m = &t.m_world;
+            let rtr = m.fixed_view::<3, 3>(0, 0).transpose() * m.fixed_view::<3, 3>(0, 0);
+            assert!((rtr - nalgebra::Matrix3::identity()).norm() < 1e-12);
+            // The tile centre at the pivot height moves by exactly the shift.
+            let side = 128.0;
+            let (x0, y0) = (t.geotransform.0[0], t.geotransform.0[3]);
+            let c = nalgebra::Vector4::new(x0 + side / 2.0, y0 - side / 2.0, 200.0, 1.0);
+            let moved = m * c - c;
+            for k in 0..3 {
+                assert!((moved[k] - t.shift_m[k]).abs() < 1e-9);
+            }
+        }
+        assert_ne!(tiles[0].seed, tiles[1].seed);
+        let mut g = p.clone();
+        g.layout = Layout::Grid;
+        g.rows = 2;
+        g.cols = 3;
+        let grid = plan_tiles(&g, 200.0);
+        assert_eq!(grid.len(), 6);
+        assert_eq!(grid[4].geotransform.0[3], 4_800_000.0 - 51.0);
+    }
+
+    /// A noise-free perturbed tile mapped back through m_world lands on the surface.
+    #[test]
+    fn written_tile_maps_back_onto_true_surface() {
+        let surface = Surface::new(SurfaceParams {
+            seed: 21,
+            ..Default::default()
+        });
+        let p = TileSetParams {
+            max_rot_deg: 0.05,
+            ..Default::default()
+        };
+        let spec = &plan_tiles(&p, 200.0)[2];
+        let n = 96u64;
+        let values = render_window(&surface, spec, &PixelEffects::none(), 40, 40, n, n);
+        let mut sampler = surface.sampler();
+        let (mut checked, mut off, mut moved) = (0, 0, 0);
+        for r in 0..n {
+            for c in 0..n {
+                let hw = values[(r * n + c) as usize] as f64;
+                if hw.is_nan() {
+                    continue;
+                }
+                let (xw, yw) = spec
+                    .geotransform
+                    .pixel_to_world((40 + c) as f64 + 0.5, (40 + r) as f64 + 0.5);
+                let p = spec.m_world * nalgebra::Vector4::new(xw, yw, hw, 1.0);
+                let truth = sampler.true_height(p[0], p[1]);
+                checked += 1;
+                if (p[2] - truth).abs() > 1e-3 {
+                    off += 1;
+                }
+                if (sampler.true_height(xw, yw) - hw).abs() > 0.05 {
+                    moved += 1;
+                }
+            }
+        }
+        assert!(checked > 8000, "{checked}");
+        assert!(off * 200 < checked, "{off} of {checked} off the surface");
+        assert!(
+            moved * 2 > checked,
+            "the perturbation must change the tile ({moved})"
+        );
+    }
+
+    #[test]
+    fn render_is_window_independent_and_noisy() {
+        let surface = Surface::new(SurfaceParams::default());
+        let p = TileSetParams::default();
+        let spec = &plan_tiles(&p, 200.0)[0];
+        let fx = PixelEffects::from_params(&p);
+        let whole = render_window(&surface, spec, &fx, 0, 0, 64, 64);
+        let part = render_window(&surface, spec, &fx, 16, 8, 16, 16);
+        for r in 0..16 {
+            for c in 0..16 {
+                let (a, b) = (
+                    whole[((r + 8) * 64 + c + 16) as usize],
+                    part[(r * 16 + c) as usize],
+                );
+                assert!(a.to_bits() == b.to_bits());
+            }
+        }
+        let clean = render_window(&surface, spec, &PixelEffects::none(), 0, 0, 64, 64);
+        let d: Vec<f64> = whole
+            .iter()
+            .zip(&clean)
+            .filter(|(a, b)| a.is_finite() && b.is_finite())
+            .map(|(a, b)| (a - b) as f64)
+            .filter(|d| d.abs() < 4.0)
+            .collect();
+        let rms = (d.iter().map(|x| x * x).sum::<f64>() / d.len() as f64).sqrt();
+        assert!((rms - 0.3).abs() < 0.03, "noise rms {rms}");
+        let edge = render_window(&surface, spec, &fx, 250, 250, 16, 16);
+        assert!(edge[10 * 16 + 10].is_nan(), "outside the tile");
+    }
+}
