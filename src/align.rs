@@ -55,32 +55,82 @@ pub fn align(
     let dsms = store.dsms();
     let root = store.root().display();
     match dsms.len() {
-        0 => return Err(AlignError::Input(format!("{root}: the store holds no DSM; run `dsmstream ingest` first"))),
-        1 => return Err(AlignError::Input(format!("{root}: the store holds one DSM; align needs at least two"))),
+        0 => {
+            return Err(AlignError::Input(format!(
+                "{root}: the store holds no DSM; run `dsmstream ingest` first"
+            )))
+        }
+        1 => {
+            return Err(AlignError::Input(format!(
+                "{root}: the store holds one DSM; align needs at least two"
+            )))
+        }
         _ => {}
     }
     let anchor = match &config.anchor {
-        Some(id) => Some(store.find(id).ok_or_else(|| AlignError::Input(format!("{root}: --anchor: no DSM with id '{id}'")))?),
+        Some(id) => Some(store.find(id).ok_or_else(|| {
+            AlignError::Input(format!("{root}: --anchor: no DSM with id '{id}'"))
+        })?),
         None => None,
     };
-    let footprints: Vec<Footprint> = dsms.iter().enumerate().map(|(index, d)| Footprint { index, bounds: d.footprint }).collect();
-    let tasks: Vec<PairTask> = candidate_pairs(&footprints).into_iter().map(|(reference, moving)| PairTask { reference, moving }).collect();
+    let footprints: Vec<Footprint> = dsms
+        .iter()
+        .enumerate()
+        .map(|(index, d)| Footprint {
+            index,
+            bounds: d.footprint,
+        })
+        .collect();
+    let tasks: Vec<PairTask> = candidate_pairs(&footprints)
+        .into_iter()
+        .map(|(reference, moving)| PairTask { reference, moving })
+        .collect();
     if tasks.is_empty() {
-        return Err(AlignError::Input(format!("{root}: no two DSM footprints overlap")));
+        return Err(AlignError::Input(format!(
+            "{root}: no two DSM footprints overlap"
+        )));
     }
     let journal_path = Journal::path_for(&config.output);
-    let settings = format!("{:?} min_overlap={}", config.pipeline.icp, config.pipeline.min_overlap);
+    let settings = format!(
+        "{:?} min_overlap={}",
+        config.pipeline.icp, config.pipeline.min_overlap
+    );
     let (mut journal, done) = if config.resume {
         Journal::resume(&journal_path, &settings)?
     } else {
         (Journal::create(&journal_path, &settings)?, Vec::new())
     };
-    let records = pipeline::run(store, cache, &tasks, &config.pipeline, &mut journal, done, progress)?;
-    let usable: Vec<&EdgeRecord> = records.iter().filter(|r| r.m_world.is_some() && r.status.is_some_and(|s| matches!(s, crate::icp::IcpStatus::Converged | crate::icp::IcpStatus::MaxIterations))).collect();
+    let records = pipeline::run(
+        store,
+        cache,
+        &tasks,
+        &config.pipeline,
+        &mut journal,
+        done,
+        progress,
+    )?;
+    let usable: Vec<&EdgeRecord> = records
+        .iter()
+        .filter(|r| {
+            r.m_world.is_some()
+                && r.status.is_some_and(|s| {
+                    matches!(
+                        s,
+                        crate::icp::IcpStatus::Converged | crate::icp::IcpStatus::MaxIterations
+                    )
+                })
+        })
+        .collect();
     if usable.is_empty() {
-        let above = records.iter().filter(|r| r.overlap >= config.pipeline.min_overlap).count();
+        let above = records
+            .iter()
+            .filter(|r| r.overlap >= config.pipeline.min_overlap)
+            .count();
         return Err(AlignError::Input(if above == 0 {
-            format!("{root}: no pair overlaps by at least --min-overlap {}", config.pipeline.min_overlap)
+            format!(
+                "{root}: no pair overlaps by at least --min-overlap {}",
+                config.pipeline.min_overlap
+            )
         } else {
             format!("{root}: none of the {above} overlapping pairs registered (see the log)")
         }));
@@ -101,16 +151,27 @@ pub fn align(
     }
     paper_weights(&mut graph.edges);
     let gauge = anchor.map_or(Gauge::Mean, Gauge::Anchor);
-    let options = AveragingOptions { gauge, ..AveragingOptions::default() };
+    let options = AveragingOptions {
+        gauge,
+        ..AveragingOptions::default()
+    };
     let (poses_local, residuals, dropped, components, summary) = match config.graph {
         GraphKind::Full => {
-            let result = average(&graph, &options).map_err(|e| AlignError::Averaging(e.to_string()))?;
+            let result =
+                average(&graph, &options).map_err(|e| AlignError::Averaging(e.to_string()))?;
             let summary = PosesSummary::from_result(&result);
-            (result.poses, result.edge_residuals, result.dropped_edges, result.components, Some(summary))
+            (
+                result.poses,
+                result.edge_residuals,
+                result.dropped_edges,
+                result.components,
+                Some(summary),
+            )
         }
         GraphKind::Mst => {
             let tree = mst(&graph);
-            let mut poses = chain_poses(&graph, &tree, anchor.unwrap_or(0)).map_err(|e| AlignError::Averaging(e.to_string()))?;
+            let mut poses = chain_poses(&graph, &tree, anchor.unwrap_or(0))
+                .map_err(|e| AlignError::Averaging(e.to_string()))?;
             let components = graph.components().members;
             for members in &components {
                 fix_gauge(&mut poses, members, anchor.filter(|a| members.contains(a)));
@@ -122,7 +183,10 @@ pub fn align(
     let poses = poses_local
         .iter()
         .enumerate()
-        .map(|(k, m)| PoseEntry { id: dsms[k].id.clone(), matrix_world: to_world(m, &origin) })
+        .map(|(k, m)| PoseEntry {
+            id: dsms[k].id.clone(),
+            matrix_world: to_world(m, &origin),
+        })
         .collect();
     let edges = graph
         .edges
@@ -143,7 +207,10 @@ pub fn align(
             converged: r.status == Some(crate::icp::IcpStatus::Converged),
         })
         .collect();
-    let component_ids: Vec<Vec<String>> = components.iter().map(|c| c.iter().map(|&k| dsms[k].id.clone()).collect()).collect();
+    let component_ids: Vec<Vec<String>> = components
+        .iter()
+        .map(|c| c.iter().map(|&k| dsms[k].id.clone()).collect())
+        .collect();
     let poses = PosesFile {
         crs: store.crs().map(|c| c.label()).unwrap_or_default(),
         poses,
@@ -153,7 +220,11 @@ pub fn align(
         components: (component_ids.len() > 1).then(|| component_ids.clone()),
         summary,
     };
-    Ok(AlignOutcome { poses, records, components: component_ids })
+    Ok(AlignOutcome {
+        poses,
+        records,
+        components: component_ids,
+    })
 }
 
 /// Centre of all footprints at the mean height: edges and poses are solved

@@ -243,8 +243,13 @@ pub fn surface_below<G: Grid + ?Sized>(
         + h01 * (1.0 - fx) * fy
         + h11 * fx * fy;
     let point = Vector3::new(query.x, query.y, h - frame.z_origin_m);
-    let (normal, roughness_m) = plane_fit(grid, frame, col_f.floor() as i64, row_f.floor() as i64, 2);
-    Some(SurfacePoint { point, normal, roughness_m })
+    let (normal, roughness_m) =
+        plane_fit(grid, frame, col_f.floor() as i64, row_f.floor() as i64, 2);
+    Some(SurfacePoint {
+        point,
+        normal,
+        roughness_m,
+    })
 }
 
 /// Pixel radius of the plane fitted for normals: a 7 x 7 window keeps the

@@ -53,12 +53,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if !(0.0..=1.0).contains(&args.min_overlap) {
         return Err(InputError::new("--min-overlap must be within [0, 1]").into());
     }
-    let threads = args.threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let threads = args
+        .threads
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
     if threads == 0 {
         return Err(InputError::new("--threads must be at least 1").into());
     }
     let config = AlignConfig {
-        pipeline: PipelineConfig { threads, icp: args.icp.to_config()?, min_overlap: args.min_overlap },
+        pipeline: PipelineConfig {
+            threads,
+            icp: args.icp.to_config()?,
+            min_overlap: args.min_overlap,
+        },
         graph: match args.graph {
             GraphArg::Full => GraphKind::Full,
             GraphArg::Mst => GraphKind::Mst,
@@ -71,7 +77,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let cache = ChunkCache::new(args.cache_mb.max(1) << 20);
     let bar = ProgressBar::with_draw_target(Some(0), ProgressDrawTarget::stderr());
     bar.set_style(
-        ProgressStyle::with_template("{bar:30} {pos}/{len} pairs {per_sec} eta {eta} {msg}").expect("valid template"),
+        ProgressStyle::with_template("{bar:30} {pos}/{len} pairs {per_sec} eta {eta} {msg}")
+            .expect("valid template"),
     );
     if tracing::enabled!(tracing::Level::ERROR) && !tracing::enabled!(tracing::Level::WARN) {
         bar.set_draw_target(ProgressDrawTarget::hidden());
@@ -82,7 +89,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         bar.set_position(done as u64);
         let s = cache.stats();
         let lookups = (s.hits + s.misses).max(1);
-        bar.set_message(format!("cache hit {:.0}%", 100.0 * s.hits as f64 / lookups as f64));
+        bar.set_message(format!(
+            "cache hit {:.0}%",
+            100.0 * s.hits as f64 / lookups as f64
+        ));
     });
     bar.finish_and_clear();
     let outcome = outcome.map_err(|e| match e {
@@ -95,13 +105,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .records
         .iter()
         .filter(|r| r.m_world.is_none() && r.overlap >= args.min_overlap)
-        .map(|r| format!("{}-{} ({})", r.reference, r.moving, r.note.clone().unwrap_or_default()))
+        .map(|r| {
+            format!(
+                "{}-{} ({})",
+                r.reference,
+                r.moving,
+                r.note.clone().unwrap_or_default()
+            )
+        })
         .collect();
     for f in &failed {
         eprintln!("warning: pair {f} gave no edge");
     }
     if outcome.components.len() > 1 {
-        eprintln!("warning: the scene graph has {} disconnected components, each solved on its own:", outcome.components.len());
+        eprintln!(
+            "warning: the scene graph has {} disconnected components, each solved on its own:",
+            outcome.components.len()
+        );
         for c in &outcome.components {
             eprintln!("  {}", c.join(", "));
         }

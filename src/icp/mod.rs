@@ -291,7 +291,10 @@ fn run_level<R: Pyramid, M: Pyramid>(
             break;
         }
         history.push((rms(&assoc.distances_m), assoc.corrs.len()));
-        let corrs = weighted(smooth_only(assoc.corrs, &assoc.roughness_m, config.max_roughness_m), config.metric);
+        let corrs = weighted(
+            smooth_only(assoc.corrs, &assoc.roughness_m, config.max_roughness_m),
+            config.metric,
+        );
         let (update, ratio) = match config.metric {
             Metric::PointToPlane | Metric::PointToSurface => {
                 match point_to_plane(&corrs, config.model) {
@@ -352,7 +355,11 @@ fn run_level<R: Pyramid, M: Pyramid>(
 
 /// Drops correspondences on rough places: above both `floor_m` and 3x the
 /// median roughness (so steep but smooth terrain at coarse GSD is kept).
-fn smooth_only(corrs: Vec<Correspondence>, roughness_m: &[f64], floor_m: f64) -> Vec<Correspondence> {
+fn smooth_only(
+    corrs: Vec<Correspondence>,
+    roughness_m: &[f64],
+    floor_m: f64,
+) -> Vec<Correspondence> {
     if roughness_m.len() != corrs.len() || corrs.is_empty() {
         return corrs;
     }
@@ -360,7 +367,12 @@ fn smooth_only(corrs: Vec<Correspondence>, roughness_m: &[f64], floor_m: f64) ->
     let mid = sorted.len() / 2;
     let median = *sorted.select_nth_unstable_by(mid, f64::total_cmp).1;
     let limit = floor_m.max(3.0 * median);
-    corrs.into_iter().zip(roughness_m).filter(|(_, &r)| r <= limit).map(|(c, _)| c).collect()
+    corrs
+        .into_iter()
+        .zip(roughness_m)
+        .filter(|(_, &r)| r <= limit)
+        .map(|(c, _)| c)
+        .collect()
 }
 
 /// Tukey biweight on the residual, scale from the median absolute residual.

@@ -1,0 +1,44 @@
+#!/usr/bin/env python3
+"""Compare a poses.json with a generator truth.json up to the common gauge.
+
+Prints, per DSM pair (i, j), the disagreement of the relative correction
+M_i^-1 M_j with the truth's, as displacement at the tile centres (m) and angle
+(deg). Usage: compare_poses.py poses.json truth.json
+"""
+import json
+import sys
+
+import numpy as np
+
+
+def load(path, key):
+    doc = json.load(open(path))
+    return {p["id"]: np.array(p["matrix_world"], dtype=float) for p in doc[key]}
+
+
+def main():
+    est = load(sys.argv[1], "poses")
+    truth_doc = json.load(open(sys.argv[2]))
+    tru = {t["id"]: np.array(t["matrix_world"], dtype=float) for t in truth_doc["tiles"]}
+    ids = sorted(tru)
+    worst_m, worst_deg, rows = 0.0, 0.0, []
+    for a in range(len(ids)):
+        for b in range(a + 1, len(ids)):
+            i, j = ids[a], ids[b]
+            rel_e = np.linalg.inv(est[i]) @ est[j]
+            rel_t = np.linalg.inv(tru[i]) @ tru[j]
+            d = np.linalg.inv(rel_t) @ rel_e
+            gt = truth_doc["tiles"][b]["geotransform"]
+            w = truth_doc["tiles"][b]["width"]
+            c = np.array([gt[0] + gt[1] * w / 2, gt[3] + gt[5] * w / 2, 200.0, 1.0])
+            disp = np.linalg.norm((d @ c - c)[:3])
+            ang = np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1, 1)))
+            rows.append((i, j, disp, ang))
+            worst_m, worst_deg = max(worst_m, disp), max(worst_deg, ang)
+    for i, j, disp, ang in rows:
+        print(f"{i} {j} {disp:8.4f} m {ang:9.5f} deg")
+    print(f"worst {worst_m:.4f} m {worst_deg:.5f} deg")
+
+
+if __name__ == "__main__":
+    main()
