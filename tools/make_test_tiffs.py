@@ -298,6 +298,17 @@ def main():
     good.append(expect_good(write("f32_onestrip_deflate.tif", data, nodata, compress="deflate",
                                   strip_rows=H), {"predictor": 1}))
 
+    # Sparse tiles (GDAL SPARSE_OK): all-no-data tiles are not stored (byte count 0).
+    sparse = data.copy()
+    sparse[:16, :] = np.nan
+    sparse[16:32, 32:48] = np.nan
+    good.append(expect_good(write("f32_tile_sparse.tif", sparse, nodata, compress="deflate",
+                                  tiled=True, SPARSE_OK=True)))
+    sparse16 = raster("i16")[0].copy()
+    sparse16[:, :32] = 0
+    good.append(expect_good(write("i16_tile_sparse_no_nodata.tif", sparse16, None,
+                                  compress="lzw", tiled=True, SPARSE_OK=True)))
+
     # BigTIFF.
     good.append(expect_good(write("f32_tile_deflate_bigtiff.tif", data, nodata,
                                   compress="deflate", tiled=True, bigtiff=True)))
