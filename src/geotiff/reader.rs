@@ -64,6 +64,8 @@ pub enum GeoTiffError {
     },
     #[error("{}: bad georeferencing tags: {detail}", .path.display())]
     BadGeoTags { path: PathBuf, detail: String },
+    #[error("{}: needs {bytes} bytes of memory to decode, more than is available (corrupt size tags?)", .path.display())]
+    TooLarge { path: PathBuf, bytes: u64 },
     #[error("{}: rows {row0}..{} requested but the raster has {height} rows", .path.display(), .row0 + .rows)]
     RowsOutOfRange {
         path: PathBuf,
@@ -240,7 +242,8 @@ impl GeoTiffReader {
                 rows,
                 height,
             })?;
-        out.resize((width * rows) as usize, 0.0);
+        let len = usize::try_from(width.saturating_mul(rows)).unwrap_or(usize::MAX);
+        decode::try_resize(&self.info.path, out, len, 0.0)?;
         if rows == 0 {
             return Ok(());
         }
@@ -283,9 +286,8 @@ impl GeoTiffReader {
         let bottom = (top + layout.block_height).min(layout.height);
         if self.kept.block_row != Some(r) {
             self.kept.block_row = None;
-            self.kept
-                .values
-                .resize(width * (bottom - top) as usize, 0.0);
+            let len = width.saturating_mul((bottom - top) as usize);
+            decode::try_resize(&self.info.path, &mut self.kept.values, len, 0.0)?;
             let sink = RowSink::new(&mut self.kept.values, width, top);
             self.blocks.decode_block_rows(r..=r, &sink)?;
             self.kept.block_row = Some(r);

@@ -35,10 +35,31 @@ impl AsRef<[u8]> for MapBytes {
 
 pub(super) type TiffDecoder = Decoder<Cursor<MapBytes>>;
 
-/// A decoder positioned on the first IFD. Limits are lifted: block sizes were
-/// checked against the file length, and one giant strip is legal.
+/// A decoder positioned on the first IFD. The compressed-size limit is lifted
+/// (block sizes were checked against the file length, and one giant strip is
+/// legal); tag values keep the default 256 MiB cap.
 pub(super) fn new_decoder(map: &MapBytes) -> Result<TiffDecoder, TiffError> {
-    Ok(Decoder::new(Cursor::new(map.clone()))?.with_limits(Limits::unlimited()))
+    let mut limits = Limits::default();
+    limits.intermediate_buffer_size = usize::MAX;
+    Ok(Decoder::new(Cursor::new(map.clone()))?.with_limits(limits))
+}
+
+/// Resize `buf` to `len` values, or say the file asks for more memory than there is.
+pub(super) fn try_resize<T: Clone>(
+    path: &Path,
+    buf: &mut Vec<T>,
+    len: usize,
+    fill: T,
+) -> Result<(), GeoTiffError> {
+    if len > buf.len() && buf.try_reserve(len - buf.len()).is_err() {
+        let bytes = len.saturating_mul(std::mem::size_of::<T>());
+        return Err(GeoTiffError::TooLarge {
+            path: path.to_path_buf(),
+            bytes: bytes as u64,
+        });
+    }
+    buf.resize(len, fill);
+    Ok(())
 }
 
 /// Map a `tiff` crate error to ours, naming the file.
@@ -205,7 +226,13 @@ impl BlockDecoder {
         // (tiff 0.11.3). Other blocks decode into a reused buffer.
         let decoded = if w == l.block_width {
             let len = data_row_bytes * h as usize;
-            worker.bytes.resize(len, 0);
+            if let Err(e) = try_resize(&self.path, &mut worker.bytes, len, 0) {
+                self.idle
+                    .lock()
+                    .unwrap_or_else(|p| p.into_inner())
+                    .push(worker);
+                return Err(e);
+            }
             let Worker { decoder, bytes, .. } = &mut worker;
             decoder
                 .read_chunk_bytes(index as u32, &mut bytes[..len])

@@ -386,3 +386,44 @@ fn reader_is_send_and_reuses_buffers() {
     r.read_rows_into(40, 5, &mut buf).unwrap();
     same_pixels("read_rows_into", &buf, &full[40 * w..45 * w]);
 }
+
+#[test]
+fn corrupted_bytes_never_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut state = 0x2545_f491_4f6c_dd1du64;
+    let mut next = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    };
+    for file in [
+        "f32_tile_deflate_p3.tif",
+        "i16_strip_lzw_bigtiff.tif",
+        "u16_tile_zstd.tif",
+        "u8_strip_packbits.tif",
+    ] {
+        let bytes = std::fs::read(fixtures().join(file)).unwrap();
+        for trial in 0..80 {
+            let mut b = bytes.clone();
+            // Even trials hit the header and IFD, odd ones anywhere.
+            let span = if trial % 2 == 0 {
+                600.min(b.len())
+            } else {
+                b.len()
+            };
+            for _ in 0..1 + trial % 4 {
+                let at = (next() % span as u64) as usize;
+                b[at] = next() as u8;
+            }
+            let path = dir.path().join(format!("{trial}_{file}"));
+            std::fs::write(&path, &b).unwrap();
+            if let Ok(mut r) = GeoTiffReader::open(&path) {
+                let h = r.info().height;
+                if let Err(e) = r.read_rows(0, h) {
+                    assert!(e.is_bad_input() && !e.to_string().contains('\n'), "{e}");
+                }
+            }
+        }
+    }
+}
