@@ -244,6 +244,20 @@ def expect_real(path):
     return rec
 
 
+README = """# GeoTIFF reader fixtures (generated: do not edit)
+
+Made by `tools/make_test_tiffs.py` with GDAL {gdal} (rasterio {rio} wheel); re-running
+it rewrites this folder byte for byte. `expected.json` holds what GDAL reports for
+each file: `good` (readable: metadata and `pixels/*.bin`, width*height little-endian
+f32 with NaN where GDAL's no-data mask is set), `bad` (files the reader must refuse,
+with the kind of error), `real` (the rasters in ../real/: metadata, valid-pixel count
+and sum, and 100 sampled pixels). Data: a synthetic 67 x 45 height field with
+no-data holes, stored in every sample type, layout and compression the reader
+supports; `bad_*` and a few variants are patched GDAL files (see the script).
+The Rust tests are in src/geotiff/reader/tests.rs.
+"""
+
+
 def compact_json(doc):
     """Pretty at the top level, one line per file record (small, diffable)."""
     parts = []
@@ -390,6 +404,8 @@ def main():
     }
     with open(os.path.join(OUT, "expected.json"), "w") as f:
         f.write(compact_json(expected))
+    with open(os.path.join(OUT, "README.md"), "w") as f:
+        f.write(README.format(gdal=rasterio.__gdal_version__, rio=rasterio.__version__))
     total = sum(os.path.getsize(p) for p in glob.glob(os.path.join(OUT, "**"), recursive=True)
                 if os.path.isfile(p))
     print(f"{len(good)} good, {len(bad)} bad, {len(real)} real; {total / 1e6:.2f} MB in {OUT}")

@@ -6,12 +6,14 @@
 //!
 //! `read_rows` decodes only the strips or tiles that touch the requested rows,
 //! in parallel with rayon (one `tiff` decoder per worker, all reading one
-//! memory map of the file), so memory stays near one row of blocks. The block
-//! row that a request ends inside is kept, so reading a file top to bottom in
-//! any row step decodes each block once. A file stored as one giant strip is
-//! one block: it decodes in one call and that block is held (whole image).
-//! Multi-band files give band 1. Submodules: `layout` (tags to block grid and
-//! metadata), `decode` (one block to `f32`).
+//! memory map of the file), each block straight into the caller's rows.
+//! Besides the output, memory is one block per worker plus one kept block row:
+//! the block row a request covers only partly is kept, so reading a file top
+//! to bottom in any row step decodes each block once. A file stored as one
+//! giant strip is one block: it decodes in one call, and a partial read keeps
+//! the whole image. Multi-band files give band 1; internal mask IFDs and
+//! scale/offset metadata are ignored. Submodules: `layout` (tags to block grid
+//! and metadata), `decode` (blocks to `f32`).
 
 mod decode;
 mod layout;
