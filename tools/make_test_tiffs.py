@@ -312,6 +312,15 @@ def main():
     good.append(expect_good(write("f32_onestrip_deflate.tif", data, nodata, compress="deflate",
                                   strip_rows=H), {"predictor": 1}))
 
+    # Big-endian files (MM byte order), with predictors.
+    for kind, layout, comp, pred in [("f32", "strip", "deflate", 3), ("i16", "tile", "lzw", 2),
+                                     ("f64", "tile", "zstd", 1), ("u16", "strip", "packbits", 1)]:
+        d, n = raster(kind)
+        name = write(f"{kind}_{layout}_{comp}_p{pred}_bigendian.tif", d, n, compress=comp,
+                     tiled=layout == "tile", predictor=pred if pred > 1 else None,
+                     ENDIANNESS="BIG")
+        good.append(expect_good(name, {"predictor": pred}))
+
     # Sparse tiles (GDAL SPARSE_OK): all-no-data tiles are not stored (byte count 0).
     sparse = data.copy()
     sparse[:16, :] = np.nan
