@@ -244,6 +244,20 @@ def expect_real(path):
     return rec
 
 
+README = """# GeoTIFF reader fixtures (generated: do not edit)
+
+Made by `tools/make_test_tiffs.py` with GDAL {gdal} (rasterio {rio} wheel); re-running
+it rewrites this folder byte for byte. `expected.json` holds what GDAL reports for
+each file: `good` (readable: metadata and `pixels/*.bin`, width*height little-endian
+f32 with NaN where GDAL's no-data mask is set), `bad` (files the reader must refuse,
+with the kind of error), `real` (the rasters in ../real/: metadata, valid-pixel count
+and sum, and 100 sampled pixels). Data: a synthetic 67 x 45 height field with
+no-data holes, stored in every sample type, layout and compression the reader
+supports; `bad_*` and a few variants are patched GDAL files (see the script).
+The Rust tests are in src/geotiff/reader/tests.rs.
+"""
+
+
 def compact_json(doc):
     """Pretty at the top level, one line per file record (small, diffable)."""
     parts = []
@@ -297,6 +311,26 @@ def main():
                                   tiled=True, block=32), {"predictor": 1}))
     good.append(expect_good(write("f32_onestrip_deflate.tif", data, nodata, compress="deflate",
                                   strip_rows=H), {"predictor": 1}))
+
+    # Big-endian files (MM byte order), with predictors.
+    for kind, layout, comp, pred in [("f32", "strip", "deflate", 3), ("i16", "tile", "lzw", 2),
+                                     ("f64", "tile", "zstd", 1), ("u16", "strip", "packbits", 1)]:
+        d, n = raster(kind)
+        name = write(f"{kind}_{layout}_{comp}_p{pred}_bigendian.tif", d, n, compress=comp,
+                     tiled=layout == "tile", predictor=pred if pred > 1 else None,
+                     ENDIANNESS="BIG")
+        good.append(expect_good(name, {"predictor": pred}))
+
+    # Sparse tiles (GDAL SPARSE_OK): all-no-data tiles are not stored (byte count 0).
+    sparse = data.copy()
+    sparse[:16, :] = np.nan
+    sparse[16:32, 32:48] = np.nan
+    good.append(expect_good(write("f32_tile_sparse.tif", sparse, nodata, compress="deflate",
+                                  tiled=True, SPARSE_OK=True)))
+    sparse16 = raster("i16")[0].copy()
+    sparse16[:, :32] = 0
+    good.append(expect_good(write("i16_tile_sparse_no_nodata.tif", sparse16, None,
+                                  compress="lzw", tiled=True, SPARSE_OK=True)))
 
     # BigTIFF.
     good.append(expect_good(write("f32_tile_deflate_bigtiff.tif", data, nodata,
@@ -379,6 +413,8 @@ def main():
     }
     with open(os.path.join(OUT, "expected.json"), "w") as f:
         f.write(compact_json(expected))
+    with open(os.path.join(OUT, "README.md"), "w") as f:
+        f.write(README.format(gdal=rasterio.__gdal_version__, rio=rasterio.__version__))
     total = sum(os.path.getsize(p) for p in glob.glob(os.path.join(OUT, "**"), recursive=True)
                 if os.path.isfile(p))
     print(f"{len(good)} good, {len(bad)} bad, {len(real)} real; {total / 1e6:.2f} MB in {OUT}")

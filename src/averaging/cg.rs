@@ -6,6 +6,25 @@
 
 use nalgebra::{Matrix3, Vector3};
 
+/// Asks the CPU to start loading `slice[index]` (both ends, so a block straddling two
+/// cache lines is covered): the edge loops are bound by random access latency.
+/// A no-op off x86_64 or out of bounds.
+#[inline(always)]
+pub(crate) fn prefetch<T>(slice: &[T], index: usize) {
+    #[cfg(target_arch = "x86_64")]
+    if let Some(item) = slice.get(index) {
+        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+        let first = (item as *const T).cast::<i8>();
+        let last = first.wrapping_add(std::mem::size_of::<T>().saturating_sub(1));
+        // SAFETY: SSE is part of the x86_64 baseline, and a prefetch never faults;
+        // both addresses lie inside `item` anyway.
+        unsafe {
+            _mm_prefetch::<_MM_HINT_T0>(first);
+            _mm_prefetch::<_MM_HINT_T0>(last);
+        }
+    }
+}
+
 /// A node's block: three lanes of CG state.
 pub(crate) trait Lanes: Copy {
     fn zero() -> Self;
@@ -15,6 +34,11 @@ pub(crate) trait Lanes: Copy {
     fn add_scaled(&mut self, s: [f64; 3], x: &Self);
     /// self = x + self * diag(s).
     fn scale_then_add(&mut self, s: [f64; 3], x: &Self);
+    /// self += s * x (every entry).
+    fn axpy(&mut self, s: f64, x: &Self);
+    /// The entries, column-major.
+    fn entries(&self) -> &[f64];
+    fn entries_mut(&mut self) -> &mut [f64];
 }
 
 impl Lanes for Vector3<f64> {
@@ -30,6 +54,15 @@ impl Lanes for Vector3<f64> {
     fn scale_then_add(&mut self, s: [f64; 3], x: &Self) {
         *self = x + self.component_mul(&Vector3::from(s));
     }
+    fn axpy(&mut self, s: f64, x: &Self) {
+        *self += x * s;
+    }
+    fn entries(&self) -> &[f64] {
+        self.as_slice()
+    }
+    fn entries_mut(&mut self) -> &mut [f64] {
+        self.as_mut_slice()
+    }
 }
 
 impl Lanes for Matrix3<f64> {
@@ -44,6 +77,15 @@ impl Lanes for Matrix3<f64> {
     }
     fn scale_then_add(&mut self, s: [f64; 3], x: &Self) {
         *self = x + *self * Matrix3::from_diagonal(&Vector3::from(s));
+    }
+    fn axpy(&mut self, s: f64, x: &Self) {
+        *self += x * s;
+    }
+    fn entries(&self) -> &[f64] {
+        self.as_slice()
+    }
+    fn entries_mut(&mut self) -> &mut [f64] {
+        self.as_mut_slice()
     }
 }
 
@@ -112,10 +154,10 @@ pub(crate) fn pcg<B: Lanes>(
             relative_residual: relative_of(r0_norm),
         };
     }
-    let mut z = vec![B::zero(); n];
-    precondition(&r, &mut z);
-    let mut p = z.clone();
-    let mut rz = sum_dot(&r, &z);
+    // z = M^-1 r shares the buffer of q = A p: q is dead once r is updated.
+    precondition(&r, &mut q);
+    let mut p = q.clone();
+    let mut rz = sum_dot(&r, &q);
     let mut norms = r0_norm;
     for iteration in 1..=tolerance.max_iter {
         apply(&p, &mut q);
@@ -139,8 +181,9 @@ pub(crate) fn pcg<B: Lanes>(
                 relative_residual: relative_of(norms),
             };
         }
-        precondition(&r, &mut z);
-        let rz_new = sum_dot(&r, &z);
+        let z = &mut q;
+        precondition(&r, z);
+        let rz_new = sum_dot(&r, z);
         let beta = [0, 1, 2].map(|l| if rz[l] != 0.0 { rz_new[l] / rz[l] } else { 0.0 });
         for k in 0..n {
             p[k].scale_then_add(beta, &z[k]);

@@ -7,10 +7,14 @@
 //!
 //! The solver works in whatever frame the edges are given in; give it edges in a
 //! local frame near the data (`poses::to_local`), not raw UTM coordinates.
-//! Memory is O(nodes + edges) (no 3N x 3N matrix), time O(edges) per CG iteration.
+//! Memory is O(nodes + edges) (no 3N x 3N matrix), time O(edges) per CG iteration;
+//! the multigrid preconditioner ([`multilevel`]) keeps the iteration count nearly
+//! flat on tile grids (~45 at 10^6 nodes, where Jacobi needs thousands).
 
 mod cg;
 mod gauge;
+mod laplacian;
+mod multilevel;
 mod robust;
 mod rotation;
 pub mod synthetic;
@@ -19,14 +23,25 @@ mod translation;
 pub use gauge::fix_gauge;
 pub use robust::edge_residuals;
 
-use crate::graph::{chain_poses, max_spanning_forest, GraphError, PoseGraph};
-use crate::poses::rigid::{from_parts, rotation};
+use crate::graph::{Components, GraphError, PoseGraph};
+use crate::poses::rigid::from_parts;
 use cg::CgTolerance;
+use laplacian::Laplacian;
+use multilevel::Multilevel;
 use nalgebra::{Matrix3, Matrix4, Vector3};
 use robust::{select_outliers, OutlierRule};
 use rotation::{solve_rotations, RotationSettings};
 use std::time::Instant;
 use translation::solve_translations;
+
+/// How the conjugate-gradient solves are preconditioned.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Preconditioner {
+    /// D^-1: cheapest per iteration; iterations grow with the graph diameter.
+    Jacobi,
+    /// Aggregation multigrid V-cycle: nearly constant iterations on tile grids.
+    Multigrid,
+}
 
 /// Which rigid motion of each component is fixed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -46,6 +61,7 @@ pub struct AveragingOptions {
     pub rotation_max_iter: usize,
     /// The rotation solver stops when no rotation changes by more than this, radians.
     pub rotation_tol_rad: f64,
+    pub preconditioner: Preconditioner,
     /// Most iterations of each conjugate-gradient solve.
     pub cg_max_iter: usize,
     /// Relative residual |r| / |b| at which the translation solve stops.
@@ -65,8 +81,9 @@ impl Default for AveragingOptions {
             robust: true,
             rotation_max_iter: 20,
             rotation_tol_rad: 1e-9,
+            preconditioner: Preconditioner::Multigrid,
             cg_max_iter: 20_000,
-            cg_tol: 1e-10,
+            cg_tol: 1e-12,
             outlier_k: 5.0,
             outlier_floor_m: 0.05,
             outlier_floor_deg: 0.005,
@@ -84,6 +101,8 @@ pub struct EdgeResidual {
 
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct AveragingTimings {
+    /// Building the Laplacian and its preconditioner.
+    pub setup_s: f64,
     pub rotation_s: f64,
     pub translation_s: f64,
     pub total_s: f64,
@@ -136,14 +155,11 @@ pub fn average(
         tracing::info_span!("averaging", nodes = graph.n, edges = graph.edges.len()).entered();
     let components = graph.components();
     let mut weights: Vec<f64> = graph.edges.iter().map(|e| e.weight).collect();
-    let tree = max_spanning_forest(graph, |e| e.weight);
     let mut solver = Solver::new(graph, &components, options);
-    let mut rotations: Vec<Matrix3<f64>> =
-        chain_poses(graph, &tree, 0)?.iter().map(rotation).collect();
+    // Identity start: DSM rotations are tiny, and the spectral solver is global anyway.
+    let mut rotations = vec![Matrix3::identity(); graph.n];
     let mut translations = vec![Vector3::zeros(); graph.n];
     solver.solve(&weights, &mut rotations, &mut translations);
-    let mut poses = assemble(&rotations, &translations);
-    let mut residuals = edge_residuals(graph, &poses);
     let (mut dropped, mut downweighted) = (Vec::new(), Vec::new());
     let mut protected = vec![false; graph.edges.len()];
     let rule = OutlierRule {
@@ -151,15 +167,20 @@ pub fn average(
         floor_m: options.outlier_floor_m,
         floor_deg: options.outlier_floor_deg,
     };
+    // Residuals do not depend on the gauge: the last ones computed stay valid.
+    let mut residuals = None;
     for _ in 0..if options.robust {
         options.robust_max_rounds
     } else {
         0
     } {
-        let round = select_outliers(graph, &weights, &residuals, &protected, rule);
+        let current = edge_residuals(graph, &assemble(&rotations, &translations));
+        let round = select_outliers(graph, &weights, &current, &protected, rule);
+        residuals = Some(current);
         if round.dropped.is_empty() && round.downweighted.is_empty() {
             break;
         }
+        residuals = None;
         tracing::info!(
             dropped = round.dropped.len(),
             downweighted = round.downweighted.len(),
@@ -175,9 +196,9 @@ pub fn average(
             downweighted.push(k);
         }
         solver.solve(&weights, &mut rotations, &mut translations);
-        poses = assemble(&rotations, &translations);
-        residuals = edge_residuals(graph, &poses);
     }
+    let mut poses = assemble(&rotations, &translations);
+    drop((rotations, translations));
     for members in &components.members {
         let anchor = match options.gauge {
             Gauge::Anchor(k) if members.binary_search(&k).is_ok() => Some(k),
@@ -197,7 +218,7 @@ pub fn average(
         "poses averaged"
     );
     let result = AveragingResult {
-        edge_residuals: edge_residuals(graph, &poses),
+        edge_residuals: residuals.unwrap_or_else(|| edge_residuals(graph, &poses)),
         poses,
         dropped_edges: dropped,
         downweighted_edges: downweighted,
@@ -241,6 +262,18 @@ fn check_options(graph: &PoseGraph, options: &AveragingOptions) -> Result<(), Av
     Ok(())
 }
 
+/// The weighted Laplacian of the edges with a positive weight.
+fn active_laplacian(graph: &PoseGraph, weights: &[f64]) -> Laplacian {
+    let edges = graph
+        .edges
+        .iter()
+        .zip(weights)
+        .filter(|(_, &w)| w > 0.0)
+        .map(|(e, &w)| (e.i as u32, e.j as u32, w))
+        .collect();
+    Laplacian::new(graph.n, edges)
+}
+
 fn assemble(rotations: &[Matrix3<f64>], translations: &[Vector3<f64>]) -> Vec<Matrix4<f64>> {
     rotations
         .iter()
@@ -252,7 +285,7 @@ fn assemble(rotations: &[Matrix3<f64>], translations: &[Vector3<f64>]) -> Vec<Ma
 /// One rotation + translation solve, with counters across robust rounds.
 struct Solver<'a> {
     graph: &'a PoseGraph,
-    components: &'a crate::graph::Components,
+    components: &'a Components,
     options: &'a AveragingOptions,
     rotation_iterations: usize,
     rotation_cg_iterations: usize,
@@ -265,7 +298,7 @@ struct Solver<'a> {
 impl<'a> Solver<'a> {
     fn new(
         graph: &'a PoseGraph,
-        components: &'a crate::graph::Components,
+        components: &'a Components,
         options: &'a AveragingOptions,
     ) -> Self {
         Solver {
@@ -289,18 +322,29 @@ impl<'a> Solver<'a> {
         translations: &mut Vec<Vector3<f64>>,
     ) {
         let started = Instant::now();
+        let coarsen = self.options.preconditioner == Preconditioner::Multigrid;
+        let hierarchy = Multilevel::new(active_laplacian(self.graph, weights), coarsen);
+        let set_up = Instant::now();
+        self.timings.setup_s += (set_up - started).as_secs_f64();
         let settings = RotationSettings {
             max_outer_iter: self.options.rotation_max_iter,
             tol_rad: self.options.rotation_tol_rad,
             cg_max_iter: self.options.cg_max_iter,
         };
-        let solution = solve_rotations(self.graph, weights, self.components, rotations, settings);
+        let solution = solve_rotations(
+            self.graph,
+            weights,
+            self.components,
+            &hierarchy,
+            std::mem::take(rotations),
+            settings,
+        );
         self.rotation_iterations += solution.iterations;
         self.rotation_cg_iterations += solution.cg_iterations;
         self.converged &= solution.converged;
         *rotations = solution.rotations;
         let rotated = Instant::now();
-        self.timings.rotation_s += (rotated - started).as_secs_f64();
+        self.timings.rotation_s += (rotated - set_up).as_secs_f64();
         let tolerance = CgTolerance {
             relative: self.options.cg_tol,
             absolute: 0.0,
@@ -312,6 +356,7 @@ impl<'a> Solver<'a> {
             weights,
             self.components,
             rotations,
+            &hierarchy,
             start,
             tolerance,
         );

@@ -10,7 +10,7 @@
 
 use super::EdgeResidual;
 use crate::graph::{PoseGraph, UnionFind};
-use crate::poses::rigid::{inverse_rigid, rotation, rotation_between_deg, translation};
+use crate::poses::rigid::{rotation, rotation_between_deg, translation};
 use nalgebra::Matrix4;
 
 /// Residuals of every edge (active or not) against the poses.
@@ -19,10 +19,13 @@ pub fn edge_residuals(graph: &PoseGraph, poses: &[Matrix4<f64>]) -> Vec<EdgeResi
         .edges
         .iter()
         .map(|e| {
-            let m_est = inverse_rigid(&poses[e.i]) * poses[e.j];
+            // M_i^-1 M_j = [R_i^T R_j, R_i^T (t_j - t_i)]
+            let r_i = rotation(&poses[e.i]);
+            let r_est = r_i.tr_mul(&rotation(&poses[e.j]));
+            let t_est = r_i.tr_mul(&(translation(&poses[e.j]) - translation(&poses[e.i])));
             EdgeResidual {
-                rotation_deg: rotation_between_deg(&rotation(&e.m_ij), &rotation(&m_est)),
-                translation_m: (translation(&m_est) - translation(&e.m_ij)).norm(),
+                rotation_deg: rotation_between_deg(&rotation(&e.m_ij), &r_est),
+                translation_m: (t_est - translation(&e.m_ij)).norm(),
             }
         })
         .collect()

@@ -5,7 +5,7 @@ use super::synthetic::{
 };
 use super::*;
 use crate::graph::{chain_poses, mst, Components, Edge};
-use crate::poses::rigid::{inverse_rigid, project_to_so3, translation};
+use crate::poses::rigid::{inverse_rigid, project_to_so3, rotation, translation};
 
 fn errors_of(result: &AveragingResult, synthetic: &SyntheticGraph) -> PoseErrors {
     pose_errors(
@@ -313,4 +313,67 @@ fn components_helper_matches_the_result() {
     // The zero-weight edge still gets a residual, against poses it did not shape.
     let m = inverse_rigid(&result.poses[9]) * result.poses[10];
     assert!((translation(&m) - translation(&graph.edges[9].m_ij)).norm() > 1e-6);
+}
+
+#[test]
+fn multigrid_and_jacobi_agree_on_a_large_grid() {
+    let exact = generate(&SyntheticSpec::exact(2500, Topology::Grid { width: 50 }, 6));
+    let result = average(&exact.graph, &AveragingOptions::default()).unwrap();
+    let errors = errors_of(&result, &exact);
+    assert!(
+        errors.translation_max_m < 1e-8 && errors.rotation_max_deg < 1e-9,
+        "{errors:?}"
+    );
+    let noisy = generate(&SyntheticSpec::noisy(
+        2500,
+        Topology::Grid { width: 50 },
+        6,
+        0.002,
+        0.02,
+    ));
+    let multigrid = average(&noisy.graph, &AveragingOptions::default()).unwrap();
+    let jacobi_options = AveragingOptions {
+        preconditioner: Preconditioner::Jacobi,
+        ..Default::default()
+    };
+    let jacobi = average(&noisy.graph, &jacobi_options).unwrap();
+    assert!(multigrid.converged && jacobi.converged);
+    assert!(
+        multigrid.cg_iterations * 3 < jacobi.cg_iterations,
+        "{} vs {}",
+        multigrid.cg_iterations,
+        jacobi.cg_iterations
+    );
+    for (a, b) in multigrid.poses.iter().zip(&jacobi.poses) {
+        assert!((a - b).abs().max() < 1e-8);
+    }
+}
+
+#[test]
+fn the_summary_counts_what_happened() {
+    let mut synthetic = generate(&SyntheticSpec::noisy(
+        300,
+        Topology::Random { edges_per_node: 6 },
+        9,
+        0.002,
+        0.01,
+    ));
+    corrupt(&mut synthetic, 50);
+    let result = average(&synthetic.graph, &AveragingOptions::default()).unwrap();
+    let summary = crate::poses::PosesSummary::from_result(&result);
+    assert_eq!(
+        (
+            summary.nodes,
+            summary.edges,
+            summary.edges_dropped,
+            summary.components
+        ),
+        (300, synthetic.graph.edges.len(), 1, 1)
+    );
+    // The dropped edge's 5 m residual is left out of the statistics.
+    assert!(
+        summary.max_residual_m < 0.2 && summary.median_residual_m > 0.0,
+        "{summary:?}"
+    );
+    assert_eq!(summary.cg_iterations, result.cg_iterations);
 }

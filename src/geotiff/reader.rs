@@ -6,12 +6,14 @@
 //!
 //! `read_rows` decodes only the strips or tiles that touch the requested rows,
 //! in parallel with rayon (one `tiff` decoder per worker, all reading one
-//! memory map of the file), so memory stays near one row of blocks. The block
-//! row that a request ends inside is kept, so reading a file top to bottom in
-//! any row step decodes each block once. A file stored as one giant strip is
-//! one block: it decodes in one call and that block is held (whole image).
-//! Multi-band files give band 1. Submodules: `layout` (tags to block grid and
-//! metadata), `decode` (one block to `f32`).
+//! memory map of the file), each block straight into the caller's rows.
+//! Besides the output, memory is one block per worker plus one kept block row:
+//! the block row a request covers only partly is kept, so reading a file top
+//! to bottom in any row step decodes each block once. A file stored as one
+//! giant strip is one block: it decodes in one call, and a partial read keeps
+//! the whole image. Multi-band files give band 1; internal mask IFDs and
+//! scale/offset metadata are ignored. Submodules: `layout` (tags to block grid
+//! and metadata), `decode` (blocks to `f32`).
 
 mod decode;
 mod layout;
@@ -21,11 +23,9 @@ mod tests;
 use std::fs::File;
 use std::path::{Path, PathBuf};
 
-use rayon::prelude::*;
-
 use crate::geotiff::geokeys::GeoKeyError;
 use crate::raster::{Crs, GeoTransform};
-use decode::{BlockDecoder, MapBytes};
+use decode::{BlockDecoder, MapBytes, RowSink};
 
 /// Every way opening or reading a GeoTIFF can fail. Display: one line naming the file.
 #[derive(Debug, thiserror::Error)]
@@ -66,6 +66,8 @@ pub enum GeoTiffError {
     },
     #[error("{}: bad georeferencing tags: {detail}", .path.display())]
     BadGeoTags { path: PathBuf, detail: String },
+    #[error("{}: needs {bytes} bytes of memory to decode, more than is available (corrupt size tags?)", .path.display())]
+    TooLarge { path: PathBuf, bytes: u64 },
     #[error("{}: rows {row0}..{} requested but the raster has {height} rows", .path.display(), .row0 + .rows)]
     RowsOutOfRange {
         path: PathBuf,
@@ -166,13 +168,14 @@ pub struct GeoTiffInfo {
 pub struct GeoTiffReader {
     info: GeoTiffInfo,
     blocks: BlockDecoder,
-    /// The decoded blocks of the block row the last request ended inside.
-    kept: Option<KeptBlockRow>,
+    /// The last block row decoded for a request that covered only part of it.
+    kept: KeptBlockRow,
 }
 
+/// One decoded block row (`width * block_height` values, image-row-major).
 struct KeptBlockRow {
-    block_row: u64,
-    blocks: Vec<Vec<f32>>,
+    block_row: Option<u64>,
+    values: Vec<f32>,
 }
 
 impl GeoTiffReader {
@@ -204,7 +207,10 @@ impl GeoTiffReader {
         Ok(GeoTiffReader {
             info: parsed.info,
             blocks,
-            kept: None,
+            kept: KeptBlockRow {
+                block_row: None,
+                values: Vec::new(),
+            },
         })
     }
 
@@ -215,6 +221,19 @@ impl GeoTiffReader {
     /// Rows `row0 .. row0 + rows`, row-major, `width * rows` values; no-data and
     /// NaN are NaN. Decodes only the blocks touching those rows.
     pub fn read_rows(&mut self, row0: u64, rows: u64) -> Result<Vec<f32>, GeoTiffError> {
+        let mut out = Vec::new();
+        self.read_rows_into(row0, rows, &mut out)?;
+        Ok(out)
+    }
+
+    /// As [`read_rows`](Self::read_rows), into `out` (resized to `width * rows`),
+    /// so a caller streaming a large file can reuse one buffer.
+    pub fn read_rows_into(
+        &mut self,
+        row0: u64,
+        rows: u64,
+        out: &mut Vec<f32>,
+    ) -> Result<(), GeoTiffError> {
         let (width, height) = (self.info.width, self.info.height);
         let end = row0
             .checked_add(rows)
@@ -225,79 +244,59 @@ impl GeoTiffReader {
                 rows,
                 height,
             })?;
-        let mut out = vec![0f32; (width * rows) as usize];
+        let len = usize::try_from(width.saturating_mul(rows)).unwrap_or(usize::MAX);
+        decode::try_resize(&self.info.path, out, len, 0.0)?;
         if rows == 0 {
-            return Ok(out);
+            return Ok(());
         }
         let layout = self.blocks.layout();
-        let (across, block_height) = (layout.blocks_across, layout.block_height);
+        let block_height = layout.block_height;
         let (first, last) = (row0 / block_height, (end - 1) / block_height);
-        // Enough blocks per parallel batch to keep every thread busy when blocks
-        // are small strips; at least one whole block row.
-        let batch_blocks = 4 * rayon::current_num_threads() as u64;
-        let mut block_row = first;
-        while block_row <= last {
-            let mut batch_last = block_row;
-            while batch_last < last && (batch_last - block_row + 1) * across < batch_blocks {
-                batch_last += 1;
-            }
-            let kept_row = self.kept.as_ref().map(|k| k.block_row);
-            let jobs: Vec<(u64, u64)> = (block_row..=batch_last)
-                .filter(|&r| Some(r) != kept_row)
-                .flat_map(|r| (0..across).map(move |bx| (bx, r)))
-                .collect();
-            let blocks = &self.blocks;
-            let mut decoded: Vec<Vec<f32>> = jobs
-                .par_iter()
-                .map(|&(bx, by)| blocks.decode(bx, by))
-                .collect::<Result<_, _>>()?;
-            let mut next = 0;
-            for r in block_row..=batch_last {
-                let row_blocks: &[Vec<f32>] = match &self.kept {
-                    Some(k) if k.block_row == r => &k.blocks,
-                    _ => {
-                        next += across as usize;
-                        &decoded[next - across as usize..next]
-                    }
-                };
-                copy_block_row(self.blocks.layout(), r, row_blocks, row0, end, &mut out);
-            }
-            let ends_inside = (last + 1) * block_height > end;
-            if batch_last == last && ends_inside && kept_row != Some(last) {
-                let blocks = decoded.split_off(decoded.len() - across as usize);
-                self.kept = Some(KeptBlockRow {
-                    block_row: last,
-                    blocks,
-                });
-            }
-            block_row = batch_last + 1;
+        let whole =
+            |r: u64| r * block_height >= row0 && ((r + 1) * block_height).min(height) <= end;
+        // Block rows only partly requested go through the kept block row (the
+        // trailing one stays kept for the next request); whole ones decode
+        // straight into `out`.
+        let mut full_first = first;
+        if !whole(first) {
+            self.copy_from_kept(first, row0, end, out)?;
+            full_first = first + 1;
         }
-        Ok(out)
+        let mut full_last = last;
+        if last >= full_first && !whole(last) {
+            self.copy_from_kept(last, row0, end, out)?;
+            full_last = last - 1;
+        }
+        if full_first <= full_last {
+            let sink = RowSink::new(out, width as usize, row0);
+            self.blocks
+                .decode_block_rows(full_first..=full_last, &sink)?;
+        }
+        Ok(())
     }
-}
 
-/// Copy the rows of block row `block_row` that fall in `row0..end` into `out`.
-fn copy_block_row(
-    layout: &layout::BlockLayout,
-    block_row: u64,
-    blocks: &[Vec<f32>],
-    row0: u64,
-    end: u64,
-    out: &mut [f32],
-) {
-    let width = layout.width as usize;
-    let top = block_row * layout.block_height;
-    let (y0, y1) = (top.max(row0), (top + layout.block_height).min(end));
-    let dst = &mut out[(y0 - row0) as usize * width..(y1 - row0) as usize * width];
-    dst.par_chunks_mut(width)
-        .enumerate()
-        .for_each(|(i, dst_row)| {
-            let in_block = (y0 - top) as usize + i;
-            let mut x = 0usize;
-            for block in blocks {
-                let w = layout.block_data_width(x as u64) as usize;
-                dst_row[x..x + w].copy_from_slice(&block[in_block * w..(in_block + 1) * w]);
-                x += w;
-            }
-        });
+    /// Copy rows `row0..end` of block row `r` into `out`, decoding it unless kept.
+    fn copy_from_kept(
+        &mut self,
+        r: u64,
+        row0: u64,
+        end: u64,
+        out: &mut [f32],
+    ) -> Result<(), GeoTiffError> {
+        let layout = self.blocks.layout();
+        let (width, top) = (layout.width as usize, r * layout.block_height);
+        let bottom = (top + layout.block_height).min(layout.height);
+        if self.kept.block_row != Some(r) {
+            self.kept.block_row = None;
+            let len = width.saturating_mul((bottom - top) as usize);
+            decode::try_resize(&self.info.path, &mut self.kept.values, len, 0.0)?;
+            let sink = RowSink::new(&mut self.kept.values, width, top);
+            self.blocks.decode_block_rows(r..=r, &sink)?;
+            self.kept.block_row = Some(r);
+        }
+        let (y0, y1) = (top.max(row0), bottom.min(end));
+        let src = &self.kept.values[(y0 - top) as usize * width..(y1 - top) as usize * width];
+        out[(y0 - row0) as usize * width..(y1 - row0) as usize * width].copy_from_slice(src);
+        Ok(())
+    }
 }

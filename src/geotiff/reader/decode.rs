@@ -5,9 +5,12 @@
 //! of `tiff` errors to [`GeoTiffError`].
 
 use std::io::Cursor;
+use std::marker::PhantomData;
+use std::ops::RangeInclusive;
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
+use rayon::prelude::*;
 use tiff::decoder::{Decoder, DecodingResult, Limits};
 use tiff::{TiffError, TiffFormatError, TiffUnsupportedError};
 
@@ -32,10 +35,31 @@ impl AsRef<[u8]> for MapBytes {
 
 pub(super) type TiffDecoder = Decoder<Cursor<MapBytes>>;
 
-/// A decoder positioned on the first IFD. Limits are lifted: block sizes were
-/// checked against the file length, and one giant strip is legal.
+/// A decoder positioned on the first IFD. The compressed-size limit is lifted
+/// (block sizes were checked against the file length, and one giant strip is
+/// legal); tag values keep the default 256 MiB cap.
 pub(super) fn new_decoder(map: &MapBytes) -> Result<TiffDecoder, TiffError> {
-    Ok(Decoder::new(Cursor::new(map.clone()))?.with_limits(Limits::unlimited()))
+    let mut limits = Limits::default();
+    limits.intermediate_buffer_size = usize::MAX;
+    Ok(Decoder::new(Cursor::new(map.clone()))?.with_limits(limits))
+}
+
+/// Resize `buf` to `len` values, or say the file asks for more memory than there is.
+pub(super) fn try_resize<T: Clone>(
+    path: &Path,
+    buf: &mut Vec<T>,
+    len: usize,
+    fill: T,
+) -> Result<(), GeoTiffError> {
+    if len > buf.len() && buf.try_reserve(len - buf.len()).is_err() {
+        let bytes = len.saturating_mul(std::mem::size_of::<T>());
+        return Err(GeoTiffError::TooLarge {
+            path: path.to_path_buf(),
+            bytes: bytes as u64,
+        });
+    }
+    buf.resize(len, fill);
+    Ok(())
 }
 
 /// Map a `tiff` crate error to ours, naming the file.
@@ -80,7 +104,52 @@ pub(super) fn tiff_error(path: &Path, e: TiffError) -> GeoTiffError {
 
 struct Worker {
     decoder: TiffDecoder,
-    buffer: DecodingResult,
+    /// Decoded bytes of a block whose data fills its rows.
+    bytes: Vec<u8>,
+    /// Decoded padded rows of a right-edge tile.
+    padded: DecodingResult,
+}
+
+/// Rows `first_row ..` of the image, `width` values each, written by many
+/// blocks at once. Each block writes only its own rows x columns, so writes
+/// never overlap.
+pub(super) struct RowSink<'a> {
+    ptr: *mut f32,
+    width: usize,
+    first_row: u64,
+    end_row: u64,
+    _buf: PhantomData<&'a mut [f32]>,
+}
+
+// SAFETY: the sink is a `&mut [f32]` split into disjoint per-block regions;
+// see `write_segment`.
+unsafe impl Send for RowSink<'_> {}
+unsafe impl Sync for RowSink<'_> {}
+
+impl<'a> RowSink<'a> {
+    pub fn new(buf: &'a mut [f32], width: usize, first_row: u64) -> RowSink<'a> {
+        let rows = (buf.len() / width.max(1)) as u64;
+        RowSink {
+            ptr: buf.as_mut_ptr(),
+            width,
+            first_row,
+            end_row: first_row + rows,
+            _buf: PhantomData,
+        }
+    }
+
+    /// Let `fill` write columns `x0 .. x0 + n` of image row `row`.
+    ///
+    /// # Safety
+    /// No other call may write the same (row, column) while this one runs:
+    /// each block of the image calls it only for its own rows and columns,
+    /// and each block is decoded by one task.
+    unsafe fn write_segment(&self, row: u64, x0: usize, n: usize, fill: impl FnOnce(&mut [f32])) {
+        assert!(row >= self.first_row && row < self.end_row && x0 + n <= self.width);
+        let start = (row - self.first_row) as usize * self.width + x0;
+        // SAFETY: in bounds (asserted) and not aliased (the caller's contract).
+        fill(unsafe { std::slice::from_raw_parts_mut(self.ptr.add(start), n) });
+    }
 }
 
 /// Decodes blocks of one file; `Sync`, so rayon tasks share it by `&`.
@@ -100,10 +169,7 @@ impl BlockDecoder {
         nodata: Option<f64>,
         first: TiffDecoder,
     ) -> Self {
-        let idle = Mutex::new(vec![Worker {
-            decoder: first,
-            buffer: DecodingResult::U8(Vec::new()),
-        }]);
+        let idle = Mutex::new(vec![Worker::new(first)]);
         BlockDecoder {
             path: path.to_path_buf(),
             map,
@@ -117,47 +183,89 @@ impl BlockDecoder {
         &self.layout
     }
 
-    /// Block (bx, by) of band 1 as `f32`, clipped to the image (w * h values).
-    pub fn decode(&self, bx: u64, by: u64) -> Result<Vec<f32>, GeoTiffError> {
+    /// Decode every block of these block rows into `sink`, in parallel.
+    pub fn decode_block_rows(
+        &self,
+        block_rows: RangeInclusive<u64>,
+        sink: &RowSink<'_>,
+    ) -> Result<(), GeoTiffError> {
+        let across = self.layout.blocks_across;
+        let (r0, r1) = (*block_rows.start(), *block_rows.end());
+        let blocks = (r1 + 1 - r0) * across;
+        (0..blocks)
+            .into_par_iter()
+            .try_for_each(|i| self.decode_into(i % across, r0 + i / across, sink))
+    }
+
+    /// Decode block (bx, by) of band 1 and write its rows that fall in `sink`.
+    fn decode_into(&self, bx: u64, by: u64, sink: &RowSink<'_>) -> Result<(), GeoTiffError> {
         let l = &self.layout;
         let (w, h) = l.block_data_dims(bx, by);
-        let pixels = (w * h) as usize;
+        let (x0, top) = ((bx * l.block_width) as usize, by * l.block_height);
+        let rows = top.max(sink.first_row)..(top + h).min(sink.end_row);
         let index = l.block_index(bx, by);
         if l.byte_counts[index] == 0 {
             // A sparse block (GDAL SPARSE_OK): no-data, or 0 without a no-data value.
-            return Ok(vec![
-                if self.nodata.is_some() { f32::NAN } else { 0.0 };
-                pixels
-            ]);
+            let fill = if self.nodata.is_some() { f32::NAN } else { 0.0 };
+            for row in rows {
+                // SAFETY: this task owns block (bx, by).
+                unsafe { sink.write_segment(row, x0, w as usize, |seg| seg.fill(fill)) };
+            }
+            return Ok(());
         }
         let popped = self.idle.lock().unwrap_or_else(|p| p.into_inner()).pop();
         let mut worker = match popped {
             Some(w) => w,
-            None => Worker {
-                decoder: new_decoder(&self.map).map_err(|e| tiff_error(&self.path, e))?,
-                buffer: DecodingResult::U8(Vec::new()),
-            },
+            None => Worker::new(new_decoder(&self.map).map_err(|e| tiff_error(&self.path, e))?),
         };
         let stride = l.samples_in_block;
         let pixel_bytes = stride * l.sample_type.bytes();
-        // Decode whole padded tile rows (row stride = tile width): one read per
-        // tile, and it avoids the `tiff` crate's row-by-row padding skip, which
-        // loses the LZW end code on some edge tiles (tiff 0.11.3).
-        let row_bytes = l.block_width as usize * pixel_bytes;
-        let decoded =
-            worker
-                .decoder
-                .read_chunk_to_buffer(&mut worker.buffer, index as u32, row_bytes);
+        let data_row_bytes = w as usize * pixel_bytes;
+        // A right-edge tile is decoded as whole padded rows: the `tiff` crate's
+        // row-by-row padding skip loses the LZW end code on some edge tiles
+        // (tiff 0.11.3). Other blocks decode into a reused buffer.
+        let decoded = if w == l.block_width {
+            let len = data_row_bytes * h as usize;
+            if let Err(e) = try_resize(&self.path, &mut worker.bytes, len, 0) {
+                self.idle
+                    .lock()
+                    .unwrap_or_else(|p| p.into_inner())
+                    .push(worker);
+                return Err(e);
+            }
+            let Worker { decoder, bytes, .. } = &mut worker;
+            decoder
+                .read_chunk_bytes(index as u32, &mut bytes[..len])
+                .map(|()| data_row_bytes)
+        } else {
+            let padded_row_bytes = l.block_width as usize * pixel_bytes;
+            let Worker {
+                decoder, padded, ..
+            } = &mut worker;
+            decoder
+                .read_chunk_to_buffer(padded, index as u32, padded_row_bytes)
+                .map(|()| padded_row_bytes)
+        };
         let result = match decoded {
-            Ok(()) => {
-                let bytes = worker.buffer.as_buffer(0);
-                let bytes = bytes.as_bytes();
-                let mut out = vec![0f32; pixels];
-                for (y, out_row) in out.chunks_exact_mut(w as usize).enumerate() {
-                    let src = &bytes[y * row_bytes..y * row_bytes + w as usize * pixel_bytes];
-                    convert(src, l.sample_type, stride, self.nodata, out_row);
+            Ok(row_bytes) => {
+                let padded_buf;
+                let bytes = if w == l.block_width {
+                    &worker.bytes[..]
+                } else {
+                    padded_buf = worker.padded.as_buffer(0);
+                    padded_buf.as_bytes()
+                };
+                for row in rows {
+                    let at = (row - top) as usize * row_bytes;
+                    let src = &bytes[at..at + data_row_bytes];
+                    // SAFETY: this task owns block (bx, by).
+                    unsafe {
+                        sink.write_segment(row, x0, w as usize, |seg| {
+                            convert(src, l.sample_type, stride, self.nodata, seg)
+                        })
+                    };
                 }
-                Ok(out)
+                Ok(())
             }
             Err(e) => Err(block_error(&self.path, e, bx, by)),
         };
@@ -166,6 +274,16 @@ impl BlockDecoder {
             .unwrap_or_else(|p| p.into_inner())
             .push(worker);
         result
+    }
+}
+
+impl Worker {
+    fn new(decoder: TiffDecoder) -> Worker {
+        Worker {
+            decoder,
+            bytes: Vec::new(),
+            padded: DecodingResult::U8(Vec::new()),
+        }
     }
 }
 

@@ -268,7 +268,7 @@ fn row_ranges_equal_the_full_read() {
         let (info, full) = read_all(&path);
         let (w, h) = (info.width as usize, info.height);
         let mut reader = GeoTiffReader::open(&path).unwrap();
-        let mut check = |reader: &mut GeoTiffReader, row0: u64, rows: u64| {
+        let check = |reader: &mut GeoTiffReader, row0: u64, rows: u64| {
             let got = reader.read_rows(row0, rows).unwrap();
             let want = &full[row0 as usize * w..(row0 + rows) as usize * w];
             same_pixels(&format!("{file} rows {row0}+{rows}"), &got, want);
@@ -343,4 +343,87 @@ fn real_rasters_match_gdal() {
     let srtm =
         GeoTiffReader::open(&fixtures().join("../real/demcompare_srtm/srtm_ref.tif")).unwrap();
     assert!(srtm.info().crs.is_geographic);
+}
+
+/// Throughput of a top-to-bottom streaming read of a large file (not run by
+/// default). Make the file and time GDAL with tools/bench_geotiff_read.py, then:
+/// `DSMSTREAM_BENCH_TIFF=/tmp/big.tif cargo test --release --lib bench_streaming_read -- --ignored --nocapture`
+#[test]
+#[ignore]
+fn bench_streaming_read() {
+    let path = PathBuf::from(std::env::var("DSMSTREAM_BENCH_TIFF").expect("DSMSTREAM_BENCH_TIFF"));
+    for band_rows in [256u64, 512, 1000] {
+        let t0 = std::time::Instant::now();
+        let mut r = GeoTiffReader::open(&path).unwrap();
+        let (w, h) = (r.info().width, r.info().height);
+        let (mut valid, mut row, mut band) = (0u64, 0, Vec::new());
+        while row < h {
+            let rows = band_rows.min(h - row);
+            r.read_rows_into(row, rows, &mut band).unwrap();
+            valid += band.iter().filter(|v| !v.is_nan()).count() as u64;
+            row += rows;
+        }
+        let dt = t0.elapsed().as_secs_f64();
+        let threads = rayon::current_num_threads();
+        println!(
+            "dsmstream reader, {threads} threads, {band_rows}-row bands: {dt:.2} s, {:.0} Mpx/s ({valid} valid)",
+            (w * h) as f64 / 1e6 / dt
+        );
+    }
+}
+
+#[test]
+fn reader_is_send_and_reuses_buffers() {
+    fn assert_send<T: Send>() {}
+    assert_send::<GeoTiffReader>();
+    let path = fixtures().join("f32_tile_deflate.tif");
+    let (info, full) = read_all(&path);
+    let w = info.width as usize;
+    let mut r = GeoTiffReader::open(&path).unwrap();
+    let mut buf = vec![1.0f32; 10];
+    r.read_rows_into(5, 20, &mut buf).unwrap();
+    same_pixels("read_rows_into", &buf, &full[5 * w..25 * w]);
+    r.read_rows_into(40, 5, &mut buf).unwrap();
+    same_pixels("read_rows_into", &buf, &full[40 * w..45 * w]);
+}
+
+#[test]
+fn corrupted_bytes_never_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut state = 0x2545_f491_4f6c_dd1du64;
+    let mut next = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        state
+    };
+    for file in [
+        "f32_tile_deflate_p3.tif",
+        "i16_strip_lzw_bigtiff.tif",
+        "u16_tile_zstd.tif",
+        "u8_strip_packbits.tif",
+    ] {
+        let bytes = std::fs::read(fixtures().join(file)).unwrap();
+        for trial in 0..80 {
+            let mut b = bytes.clone();
+            // Even trials hit the header and IFD, odd ones anywhere.
+            let span = if trial % 2 == 0 {
+                600.min(b.len())
+            } else {
+                b.len()
+            };
+            for _ in 0..1 + trial % 4 {
+                let at = (next() % span as u64) as usize;
+                b[at] = next() as u8;
+            }
+            let path = dir.path().join(format!("{trial}_{file}"));
+            std::fs::write(&path, &b).unwrap();
+            if let Ok(mut r) = GeoTiffReader::open(&path) {
+                let h = r.info().height;
+                if let Err(e) = r.read_rows(0, h) {
+                    assert!(e.is_bad_input() && !e.to_string().contains('\n'), "{e}");
+                }
+            }
+        }
+    }
 }
