@@ -12,43 +12,11 @@ use crate::poses::rigid::{
 };
 use nalgebra::{Matrix4, Vector3};
 
-/// SplitMix64: small, fast, good enough for test data.
-#[derive(Clone, Debug)]
-pub struct SplitMix64(u64);
+pub use crate::rng::SplitMix64;
 
-impl SplitMix64 {
-    pub fn new(seed: u64) -> Self {
-        SplitMix64(seed)
-    }
-
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in [0, 1).
-    pub fn uniform(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
-    }
-
-    /// Uniform integer in [0, n).
-    pub fn below(&mut self, n: usize) -> usize {
-        ((self.next_u64() as u128 * n as u128) >> 64) as usize
-    }
-
-    /// Standard normal (Box-Muller).
-    pub fn normal(&mut self) -> f64 {
-        let u1 = 1.0 - self.uniform();
-        let u2 = self.uniform();
-        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
-    }
-
-    pub fn normal3(&mut self, sigma: f64) -> Vector3<f64> {
-        Vector3::new(self.normal(), self.normal(), self.normal()) * sigma
-    }
+/// Three independent normal deviates of standard deviation `sigma`.
+pub fn normal3(rng: &mut SplitMix64, sigma: f64) -> Vector3<f64> {
+    Vector3::new(rng.normal(), rng.normal(), rng.normal()) * sigma
 }
 
 /// How the nodes are connected.
@@ -121,21 +89,23 @@ pub fn generate(spec: &SyntheticSpec) -> SyntheticGraph {
     let mut rng = SplitMix64::new(spec.seed);
     let truth: Vec<Matrix4<f64>> = (0..spec.nodes)
         .map(|_| {
-            let r = rotation_from_axis_angle(&rng.normal3(spec.rotation_spread_deg.to_radians()));
-            from_parts(&r, &rng.normal3(spec.translation_spread_m))
+            let r =
+                rotation_from_axis_angle(&normal3(&mut rng, spec.rotation_spread_deg.to_radians()));
+            from_parts(&r, &normal3(&mut rng, spec.translation_spread_m))
         })
         .collect();
     let pairs = pairs(spec, &mut rng);
     let mut edges = Vec::with_capacity(pairs.len());
     for (i, j) in pairs {
-        let noise_r = rotation_from_axis_angle(&rng.normal3(spec.noise_rotation_deg.to_radians()));
-        let noise = from_parts(&noise_r, &rng.normal3(spec.noise_translation_m));
+        let noise_r =
+            rotation_from_axis_angle(&normal3(&mut rng, spec.noise_rotation_deg.to_radians()));
+        let noise = from_parts(&noise_r, &normal3(&mut rng, spec.noise_translation_m));
         edges.push(Edge {
             i,
             j,
             m_ij: inverse_rigid(&truth[i]) * truth[j] * noise,
-            overlap: 0.3 + 0.6 * rng.uniform(),
-            rmse_m: spec.noise_translation_m * (1.0 + rng.uniform()) + 0.05,
+            overlap: 0.3 + 0.6 * rng.next_f64(),
+            rmse_m: spec.noise_translation_m * (1.0 + rng.next_f64()) + 0.05,
             weight: 1.0,
         });
     }
@@ -178,7 +148,7 @@ fn pairs(spec: &SyntheticSpec, rng: &mut SplitMix64) -> Vec<(usize, usize)> {
                     pairs.push((i, i + 1));
                 }
                 for _ in 1..edges_per_node {
-                    let j = rng.below(n);
+                    let j = rng.below(n as u64) as usize;
                     if j != i {
                         pairs.push((i, j));
                     }

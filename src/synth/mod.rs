@@ -4,13 +4,12 @@
 //! motion and adds noise, outliers and voids, and the writers of tile sets,
 //! `truth.json` and truth grids. `tools/dsmgen.rs` is the command line over it.
 //!
-//! Parts: `prng` (SplitMix64 and coordinate hashes) → `objects` (per-cell
+//! Parts: `crate::rng` (SplitMix64 and coordinate hashes) → `objects` (per-cell
 //! buildings and trees) → `surface` (the height function) → `tiles` (layout,
 //! perturbation, rendering) → `output` (COGs and truth.json).
 
 pub mod objects;
 pub mod output;
-pub mod prng;
 pub mod surface;
 pub mod tiles;
 

@@ -6,7 +6,7 @@
 //! objects from a hash of (seed, cell), and each object lies wholly inside its
 //! cell, so the height at a point needs only that point's cell: O(1).
 
-use super::prng::{hash2, SplitMix64};
+use crate::rng::{hash2, SplitMix64};
 
 /// Edge of an object cell in metres (a city block).
 pub const CELL_M: f64 = 64.0;

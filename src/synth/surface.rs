@@ -12,7 +12,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::objects::{generate_cell, Cell, ObjectParams, CELL_M};
-use super::prng::{derive_seed, hash2, unit_f64, SplitMix64};
+use crate::rng::{derive_seed, hash2, unit_f64, SplitMix64};
 
 /// Edge of a lake cell in metres; at most one lake per cell, wholly inside it.
 const LAKE_CELL_M: f64 = 512.0;

@@ -23,9 +23,9 @@
 use nalgebra::{Matrix4, Rotation3, Translation3, Vector3};
 use serde::{Deserialize, Serialize};
 
-use super::prng::{derive_seed, hash2, unit_f64, SplitMix64};
 use super::surface::{Sampler, Surface};
 use crate::raster::GeoTransform;
+use crate::rng::{derive_seed, hash2, unit_f64, SplitMix64};
 
 /// Void patches are discs centred in cells of this many pixels.
 const VOID_CELL_PX: i64 = 32;
