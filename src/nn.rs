@@ -243,12 +243,27 @@ pub fn surface_below<G: Grid + ?Sized>(
         + h01 * (1.0 - fx) * fy
         + h11 * fx * fy;
     let point = Vector3::new(query.x, query.y, h - frame.z_origin_m);
-    let (normal, roughness_m) =
-        plane_fit(grid, frame, col_f.floor() as i64, row_f.floor() as i64, 2);
+    let (col, row) = (col_f.floor() as i64, row_f.floor() as i64);
+    let plane = plane_fit(grid, frame, col, row, 2)?;
+    // The four interpolated pixels must lie on the ring's plane: a spike or a
+    // wall among them makes the bilinear height meaningless.
+    let limit_m = (4.0 * plane.rms_m).max(0.5);
+    for (c, r, hv) in [
+        (c0, r0, h00),
+        (c0 + 1, r0, h10),
+        (c0, r0 + 1, h01),
+        (c0 + 1, r0 + 1, h11),
+    ] {
+        let dx = (c - col) as f64 * frame.gsd_x_m;
+        let dy = -((r - row) as f64) * frame.gsd_y_m;
+        if (hv - plane.height_at(dx, dy)).abs() > limit_m {
+            return None;
+        }
+    }
     Some(SurfacePoint {
         point,
-        normal,
-        roughness_m,
+        normal: plane.normal(),
+        roughness_m: plane.rms_m,
     })
 }
 
@@ -266,20 +281,44 @@ pub fn normal_at<G: Grid + ?Sized>(
     col: i64,
     row: i64,
 ) -> Vector3<f64> {
-    plane_fit(grid, frame, col, row, 1).0
+    plane_fit(grid, frame, col, row, 1).map_or(Vector3::z(), |p| p.normal())
 }
 
 /// Least-squares plane normal over the (2r+1)^2 window around (col, row),
 /// skipping the inner square of Chebyshev radius < `skip_radius_px`
 /// (1 = only the centre). The plane is fitted with an intercept.
-/// Also returns the RMS height residual of the window about the plane (roughness).
+/// A least-squares plane around a pixel: z = z0 + a dx + b dy, with dx, dy in
+/// metres from that pixel's centre (y up).
+#[derive(Clone, Copy, Debug)]
+struct Plane {
+    z0: f64,
+    a: f64,
+    b: f64,
+    /// RMS height residual of the pixels kept by the fit (roughness).
+    rms_m: f64,
+}
+
+impl Plane {
+    fn normal(&self) -> Vector3<f64> {
+        Vector3::new(-self.a, -self.b, 1.0).normalize()
+    }
+
+    fn height_at(&self, dx: f64, dy: f64) -> f64 {
+        self.z0 + self.a * dx + self.b * dy
+    }
+}
+
+/// Robust plane over the (2r+1)^2 window around (col, row), skipping the inner
+/// square of Chebyshev radius < `skip_radius_px` (1 = only the centre): a
+/// least-squares fit, then a refit without pixels beyond 3 robust sigmas
+/// (spikes, the far side of a wall). None with fewer than 6 valid pixels.
 fn plane_fit<G: Grid + ?Sized>(
     grid: &mut G,
     frame: &PixelFrame,
     col: i64,
     row: i64,
     skip_radius_px: i64,
-) -> (Vector3<f64>, f64) {
+) -> Option<Plane> {
     let k = NORMAL_RADIUS_PX;
     let mut pts: [(f64, f64, f64); 49] = [(0.0, 0.0, 0.0); 49];
     let mut n = 0;
@@ -300,13 +339,43 @@ fn plane_fit<G: Grid + ?Sized>(
             n += 1;
         }
     }
-    let pts = &pts[..n];
-    let inv = 1.0 / n.max(1) as f64;
-    let (mx, my, mz) = pts.iter().fold((0.0, 0.0, 0.0), |a, p| {
-        (a.0 + p.0 * inv, a.1 + p.1 * inv, a.2 + p.2 * inv)
-    });
+    let mut keep = [true; 49];
+    let first = fit_plane(&pts[..n], &keep[..n])?;
+    let mut abs_res = [0.0f64; 49];
+    for (i, &(x, y, z)) in pts[..n].iter().enumerate() {
+        abs_res[i] = (z - first.height_at(x, y)).abs();
+    }
+    let mut sorted = abs_res;
+    let sorted = &mut sorted[..n];
+    sorted.sort_unstable_by(f64::total_cmp);
+    let limit = (3.0 * 1.4826 * sorted[n / 2]).max(0.05);
+    let mut dropped = 0;
+    for i in 0..n {
+        if abs_res[i] > limit {
+            keep[i] = false;
+            dropped += 1;
+        }
+    }
+    if dropped == 0 {
+        return Some(first);
+    }
+    fit_plane(&pts[..n], &keep[..n])
+}
+
+fn fit_plane(pts: &[(f64, f64, f64)], keep: &[bool]) -> Option<Plane> {
+    let n = keep.iter().filter(|&&k| k).count();
+    if n < 6 {
+        return None;
+    }
+    let inv = 1.0 / n as f64;
+    let (mut mx, mut my, mut mz) = (0.0, 0.0, 0.0);
+    for (&(x, y, z), _) in pts.iter().zip(keep).filter(|(_, &k)| k) {
+        mx += x * inv;
+        my += y * inv;
+        mz += z * inv;
+    }
     let (mut sxx, mut syy, mut sxy, mut sxz, mut syz) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    for &(x, y, z) in pts {
+    for (&(x, y, z), _) in pts.iter().zip(keep).filter(|(_, &k)| k) {
         let (dx, dy, dz) = (x - mx, y - my, z - mz);
         sxx += dx * dx;
         syy += dy * dy;
@@ -315,17 +384,24 @@ fn plane_fit<G: Grid + ?Sized>(
         syz += dy * dz;
     }
     let det = sxx * syy - sxy * sxy;
-    if n < 3 || det.abs() < 1e-12 {
-        return (Vector3::z(), f64::INFINITY);
+    if det.abs() < 1e-12 {
+        return None;
     }
-    // Plane z = a x + b y through the centre pixel.
     let a = (sxz * syy - syz * sxy) / det;
     let b = (syz * sxx - sxz * sxy) / det;
+    let z0 = mz - a * mx - b * my;
     let sum_sq: f64 = pts
         .iter()
-        .map(|&(x, y, z)| (z - mz - a * (x - mx) - b * (y - my)).powi(2))
+        .zip(keep)
+        .filter(|(_, &k)| k)
+        .map(|(&(x, y, z), _)| (z - z0 - a * x - b * y).powi(2))
         .sum();
-    (Vector3::new(-a, -b, 1.0).normalize(), (sum_sq * inv).sqrt())
+    Some(Plane {
+        z0,
+        a,
+        b,
+        rms_m: (sum_sq * inv).sqrt(),
+    })
 }
 
 #[cfg(test)]

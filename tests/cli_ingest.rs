@@ -92,8 +92,8 @@ fn ingest_directory_then_info_lists_all_three() {
     for d in dsms {
         assert_eq!(
             d["levels"].as_array().unwrap().len(),
-            3,
-            "760 -> 380 -> 190 px"
+            5,
+            "760 -> 380 -> 190 -> 95 -> 48 px (overviews down to 64 px)"
         );
         assert_eq!(d["geotransform"][1], 1.0);
         let valid = d["valid_count"].as_u64().unwrap();

@@ -73,7 +73,8 @@ impl Compression {
 pub struct StorageSettings {
     pub chunk: u64,
     pub compression: Compression,
-    /// Overviews are added until the long side is at most this many pixels.
+    /// Overviews are added until the long side is at most this many pixels
+    /// (64 by default: coarse-to-fine ICP needs a few levels even on small DSMs).
     pub min_overview_px: u64,
 }
 
@@ -82,7 +83,7 @@ impl Default for StorageSettings {
         StorageSettings {
             chunk: 512,
             compression: Compression::Zstd { level: 3 },
-            min_overview_px: 256,
+            min_overview_px: 64,
         }
     }
 }
