@@ -268,6 +268,7 @@ fn run_level<R: Pyramid, M: Pyramid>(
     let lever_m = half_diagonal(overlap_box);
 
     let mut history: Vec<(f64, usize)> = Vec::new();
+    let mut recent_steps_m: Vec<f64> = Vec::new();
     let mut nn = NnStats::default();
     let mut status = IcpStatus::MaxIterations;
     let mut constraint_ratio = 1.0;
@@ -319,7 +320,10 @@ fn run_level<R: Pyramid, M: Pyramid>(
             break;
         }
         let step_m = update.translation.vector.norm() + update.rotation.angle() * lever_m;
-        if step_m < config.tolerance_m * scale {
+        recent_steps_m.push(step_m);
+        if step_m < config.tolerance_m * scale
+            || stalled(&recent_steps_m, config.tolerance_m * scale)
+        {
             status = IcpStatus::Converged;
             break;
         }
@@ -351,6 +355,16 @@ fn run_level<R: Pyramid, M: Pyramid>(
         final_association,
         nn,
     })
+}
+
+/// At the noise floor the inlier set flips between iterations and the estimate
+/// jitters by a few tolerances without a trend: three small steps in a row end
+/// the level.
+fn stalled(steps_m: &[f64], tolerance_m: f64) -> bool {
+    steps_m.len() >= 3
+        && steps_m[steps_m.len() - 3..]
+            .iter()
+            .all(|&s| s < 20.0 * tolerance_m)
 }
 
 /// Drops correspondences on rough places: above both `floor_m` and 3x the

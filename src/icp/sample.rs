@@ -41,7 +41,7 @@ pub fn sample_overlap<G: Grid + ?Sized>(
         return Samples::default();
     };
     let area = ((col1 - col0) * (row1 - row0)) as f64;
-    let cell = ((area / count.max(1) as f64).sqrt().floor() as i64).max(1);
+    let cell = ((area / count.max(1) as f64).sqrt().ceil() as i64).max(1);
     let mut rng = SplitMix64::new(seed);
     let mut samples = Samples::default();
     let mut row = row0;
