@@ -268,7 +268,7 @@ fn run_level<R: Pyramid, M: Pyramid>(
     let lever_m = half_diagonal(overlap_box);
 
     let mut history: Vec<(f64, usize)> = Vec::new();
-    let mut recent_steps_m: Vec<f64> = Vec::new();
+    let mut recent: Vec<Isometry3<f64>> = vec![t_ref_moving];
     let mut nn = NnStats::default();
     let mut status = IcpStatus::MaxIterations;
     let mut constraint_ratio = 1.0;
@@ -320,9 +320,9 @@ fn run_level<R: Pyramid, M: Pyramid>(
             break;
         }
         let step_m = update.translation.vector.norm() + update.rotation.angle() * lever_m;
-        recent_steps_m.push(step_m);
+        recent.push(t_ref_moving);
         if step_m < config.tolerance_m * scale
-            || stalled(&recent_steps_m, config.tolerance_m * scale)
+            || stalled(&recent, lever_m, config.tolerance_m * scale)
         {
             status = IcpStatus::Converged;
             break;
@@ -358,13 +358,15 @@ fn run_level<R: Pyramid, M: Pyramid>(
 }
 
 /// At the noise floor the inlier set flips between iterations and the estimate
-/// jitters by a few tolerances without a trend: three small steps in a row end
-/// the level.
-fn stalled(steps_m: &[f64], tolerance_m: f64) -> bool {
-    steps_m.len() >= 3
-        && steps_m[steps_m.len() - 3..]
-            .iter()
-            .all(|&s| s < 20.0 * tolerance_m)
+/// jitters without a trend: when the net motion over the last four iterations is
+/// below 10 tolerances, the level is done (a slow drift keeps going).
+fn stalled(estimates: &[Isometry3<f64>], lever_m: f64, tolerance_m: f64) -> bool {
+    let n = estimates.len();
+    if n < 5 {
+        return false;
+    }
+    let net = estimates[n - 1] * estimates[n - 5].inverse();
+    net.translation.vector.norm() + net.rotation.angle() * lever_m < 10.0 * tolerance_m
 }
 
 /// Drops correspondences on rough places: above both `floor_m` and 3x the
@@ -531,6 +533,7 @@ mod tests {
     }
 
     fn check_recovery(
+        noise_m: f64,
         truth_local: Isometry3<f64>,
         config: &IcpConfig,
         tol_m: f64,
@@ -548,10 +551,10 @@ mod tests {
             400,
             0.5,
             &Isometry3::identity(),
-            0.15,
+            noise_m,
             1,
         );
-        let moving = dsm(500_060.0, 4_800_200.0, 400, 0.5, &truth, 0.15, 2);
+        let moving = dsm(500_060.0, 4_800_200.0, 400, 0.5, &truth, noise_m, 2);
         let (rp, mp) = (
             MemPyramid::build(reference, 64),
             MemPyramid::build(moving, 64),
@@ -576,14 +579,15 @@ mod tests {
             Translation3::new(1.3, -0.7, 0.9),
             UnitQuaternion::from_euler_angles(0.0002, -0.0003, 0.0006),
         );
-        // Rigid: yaw is constrained only by slopes once walls are filtered out;
-        // this surface reaches ~5 cm / 0.02 deg (the 5 cm / 0.002 deg target is open).
+        // Noise-free: the machinery must be exact. With noise, rigid accuracy is
+        // tested on generated city tiles (tests/cli_pair_recovery.rs): this box
+        // surface has too few slopes to fix yaw once walls are filtered out.
         let config = IcpConfig {
-            samples: 20_000,
+            samples: 120_000,
             ..Default::default()
         };
-        check_recovery(truth, &config, 0.25, 0.03);
-        check_recovery(truth.inverse(), &config, 0.25, 0.03);
+        check_recovery(0.0, truth, &config, 0.01, 0.001);
+        check_recovery(0.0, truth.inverse(), &config, 0.01, 0.001);
     }
 
     #[test]
@@ -593,12 +597,12 @@ mod tests {
             UnitQuaternion::identity(),
         );
         let config = IcpConfig {
-            samples: 40_000,
+            samples: 120_000,
             model: Model::Translation,
             ..Default::default()
         };
-        check_recovery(truth, &config, 0.05, 1e-9);
-        check_recovery(truth.inverse(), &config, 0.05, 1e-9);
+        check_recovery(0.15, truth, &config, 0.05, 1e-9);
+        check_recovery(0.15, truth.inverse(), &config, 0.05, 1e-9);
     }
 
     #[test]
@@ -608,11 +612,11 @@ mod tests {
             UnitQuaternion::identity(),
         );
         let config = IcpConfig {
-            samples: 20_000,
+            samples: 120_000,
             model: Model::Translation,
             ..Default::default()
         };
-        check_recovery(truth, &config, 0.08, 0.1);
+        check_recovery(0.15, truth, &config, 0.05, 1e-9);
     }
 
     #[test]
