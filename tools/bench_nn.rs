@@ -1,0 +1,429 @@
+//! `bench_nn`: the paper's memory/speed experiment (Xu & Qin 2024, Fig. 5/6):
+//! DSM-ICP through the chunk cache against a k-d tree ICP, on reference DSMs of
+//! growing size and one fixed query set.
+//!
+//! - `bench_nn run`: generates the inputs with `dsmgen big` (reference of N x N
+//!   px, moving DSM of 700 x 700 px inside its top-left corner with a known
+//!   shift), ingests them, then runs each method in its own process per size and
+//!   prints a table (plus CSV and Markdown) of NN time per iteration, end-to-end
+//!   wall time and peak RSS.
+//! - `bench_nn dsm` / `bench_nn kdtree`: one method on one store, one JSON line.
+//!
+//! Both methods use the same `IcpConfig` (point-to-point Kabsch, full
+//! resolution, tau 10 m), the same samples, and the same rayon pool.
+
+#[path = "bench_nn_report.rs"]
+mod bench_nn_report;
+mod kdtree_icp;
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{bail, Context};
+use clap::{Parser, Subcommand};
+use dsmstream::cache::ChunkCache;
+use dsmstream::fit::Model;
+use dsmstream::grid::Grid;
+use dsmstream::icp::{matrix_rows, register, IcpConfig, Metric};
+use dsmstream::nn::{nearest, NnStats};
+use dsmstream::store::{Store, StoreGrid, StorePyramid};
+use rayon::prelude::*;
+use serde_json::{json, Value};
+
+use bench_nn_report::{write_csv, write_markdown, Row};
+use kdtree_icp::{load_cloud, queries, register_kd, KdReference, Queries};
+
+#[derive(Parser)]
+#[command(
+    name = "bench_nn",
+    about = "Grid NN (DSM-ICP) vs k-d tree ICP, paper Fig. 5/6"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Generate, ingest and run both methods for every size.
+    Run(RunArgs),
+    /// DSM-ICP through the chunk cache on one store (prints one JSON line).
+    Dsm(SideArgs),
+    /// k-d tree ICP on one store (prints one JSON line).
+    Kdtree(SideArgs),
+}
+
+#[derive(clap::Args, Clone)]
+struct SideArgs {
+    store: PathBuf,
+    #[arg(long)]
+    reference: String,
+    #[arg(long, default_value = "moving")]
+    moving: String,
+    #[arg(long, default_value_t = 50_000)]
+    samples: usize,
+    #[arg(long, default_value_t = 64)]
+    cache_mb: usize,
+    /// Timed NN passes at the identity after the ICP (median reported).
+    #[arg(long, default_value_t = 3)]
+    nn_repeats: usize,
+}
+
+#[derive(clap::Args)]
+struct RunArgs {
+    /// Working directory for the generated DSMs and stores.
+    #[arg(long, default_value = "/tmp/bench_nn")]
+    work: PathBuf,
+    /// Reference edge lengths in pixels (0.5, 25, 106, 300 M points).
+    #[arg(long, value_delimiter = ',', default_value = "707,5000,10300,17320")]
+    sizes: Vec<u64>,
+    #[arg(long, default_value_t = 50_000)]
+    samples: usize,
+    #[arg(long, default_value_t = 64)]
+    cache_mb: usize,
+    /// Skip the k-d tree above this many reference pixels (0 = never skip).
+    #[arg(long, default_value_t = 0)]
+    kd_max_pixels: u64,
+    #[arg(long, default_value = "tools/bench_nn_results.csv")]
+    csv: PathBuf,
+    #[arg(long, default_value = "tools/bench_nn_results.md")]
+    markdown: PathBuf,
+}
+
+fn main() -> anyhow::Result<()> {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    match Cli::parse().command {
+        Command::Run(a) => run(a),
+        Command::Dsm(a) => {
+            println!("{}", dsm_side(&a)?);
+            Ok(())
+        }
+        Command::Kdtree(a) => {
+            println!("{}", kd_side(&a)?);
+            Ok(())
+        }
+    }
+}
+
+/// The configuration both methods run: the paper's point-to-point ICP at full resolution.
+fn icp_config(samples: usize) -> IcpConfig {
+    IcpConfig {
+        model: Model::Rigid,
+        metric: Metric::PointToPoint,
+        tau_m: 10.0,
+        samples,
+        max_level: 0,
+        ..IcpConfig::default()
+    }
+}
+
+fn open(a: &SideArgs) -> anyhow::Result<(Store, usize, usize)> {
+    let store = Store::open(&a.store)?;
+    let find = |id: &str| {
+        store
+            .find(id)
+            .with_context(|| format!("{}: no DSM '{id}'", a.store.display()))
+    };
+    let (r, m) = (find(&a.reference)?, find(&a.moving)?);
+    Ok((store, r, m))
+}
+
+/// DSM-ICP: `register` end to end, then the warm per-iteration NN time.
+fn dsm_side(a: &SideArgs) -> anyhow::Result<Value> {
+    let started = Instant::now();
+    let (store, r, m) = open(a)?;
+    let cache = ChunkCache::new(a.cache_mb << 20);
+    let config = icp_config(a.samples);
+    let (ref_pyr, mov_pyr) = (
+        StorePyramid::new(&store, &cache, r),
+        StorePyramid::new(&store, &cache, m),
+    );
+    let result = register(&ref_pyr, &mov_pyr, &config)?;
+    let end_to_end_s = started.elapsed().as_secs_f64();
+    let q = queries(&ref_pyr, &mov_pyr, &config).map_err(anyhow::Error::msg)?;
+    let (nn_s, check) = timed_passes(a.nn_repeats, || {
+        grid_pass(&store, &cache, r, &q, config.tau_m)
+    })?;
+    Ok(json!({
+        "method": "dsmstream",
+        "reference_points": store.dsms()[r].valid_count,
+        "end_to_end_s": end_to_end_s,
+        "nn_s_per_iteration": nn_s,
+        "iterations": result.iterations,
+        "status": result.status,
+        "m_world": matrix_rows(&result.m_world),
+        "rmse_m": result.rmse_m,
+        "inliers": result.inliers,
+        "check": check,
+        "cache": cache.stats(),
+        "peak_rss_mb": peak_rss_mb(),
+    }))
+}
+
+/// One pass of exact grid NN over the query set at the identity; returns
+/// (inliers within tau, sum of their distances) as a cross-check.
+fn grid_pass(
+    store: &Store,
+    cache: &ChunkCache,
+    dsm: usize,
+    q: &Queries,
+    tau_m: f64,
+) -> anyhow::Result<(usize, f64)> {
+    let parts: Vec<anyhow::Result<(usize, f64)>> = q
+        .points
+        .par_chunks(4096)
+        .map(|block| {
+            let mut grid = StoreGrid::new(store, cache, dsm, 0)?;
+            let mut stats = NnStats::default();
+            let mut out = (0, 0.0);
+            for p in block {
+                if let Some(n) = nearest(&mut grid, &q.ref_frame, p, tau_m, &mut stats) {
+                    if n.distance_m <= tau_m {
+                        out.0 += 1;
+                        out.1 += n.distance_m;
+                    }
+                }
+            }
+            Ok(out)
+        })
+        .collect();
+    sum_parts(parts)
+}
+
+fn sum_parts(parts: Vec<anyhow::Result<(usize, f64)>>) -> anyhow::Result<(usize, f64)> {
+    let mut total = (0, 0.0);
+    for p in parts {
+        let (n, s) = p?;
+        total.0 += n;
+        total.1 += s;
+    }
+    Ok(total)
+}
+
+/// The same pass through the k-d tree.
+fn kd_pass(kd: &KdReference, q: &Queries, tau_m: f64) -> anyhow::Result<(usize, f64)> {
+    let parts: Vec<anyhow::Result<(usize, f64)>> = q
+        .points
+        .par_chunks(4096)
+        .map(|block| {
+            let mut out = (0, 0.0);
+            for p in block {
+                let (_, d) = kd.nearest(p);
+                if d <= tau_m {
+                    out.0 += 1;
+                    out.1 += d;
+                }
+            }
+            Ok(out)
+        })
+        .collect();
+    sum_parts(parts)
+}
+
+/// Median wall time of `repeats` calls (after one untimed warm-up call), and the last result.
+fn timed_passes(
+    repeats: usize,
+    mut pass: impl FnMut() -> anyhow::Result<(usize, f64)>,
+) -> anyhow::Result<(f64, Value)> {
+    let mut check = pass()?;
+    let mut times = Vec::new();
+    for _ in 0..repeats.max(1) {
+        let t = Instant::now();
+        check = pass()?;
+        times.push(t.elapsed().as_secs_f64());
+    }
+    times.sort_by(f64::total_cmp);
+    let check = json!({"inliers": check.0, "sum_distance_m": check.1});
+    Ok((times[times.len() / 2], check))
+}
+
+/// k-d tree ICP: read all valid reference points, build, iterate.
+fn kd_side(a: &SideArgs) -> anyhow::Result<Value> {
+    let started = Instant::now();
+    let (store, r, m) = open(a)?;
+    let config = icp_config(a.samples);
+    let (q, cloud) = {
+        let cache = ChunkCache::new(a.cache_mb << 20);
+        let (ref_pyr, mov_pyr) = (
+            StorePyramid::new(&store, &cache, r),
+            StorePyramid::new(&store, &cache, m),
+        );
+        let q = queries(&ref_pyr, &mov_pyr, &config).map_err(anyhow::Error::msg)?;
+        let mut grid = StoreGrid::new(&store, &cache, r, 0)?;
+        let mut band = |g: &mut StoreGrid, row0: i64, rows: usize| {
+            let w = g.width() as usize;
+            g.read_window(0, row0, w, rows)
+        };
+        let expected = store.dsms()[r].valid_count as usize;
+        let cloud = load_cloud(&mut grid, &mut band, &q.ref_frame, expected, 512);
+        if let Some(e) = grid.take_error() {
+            bail!("reading the reference failed: {e}");
+        }
+        (q, cloud)
+    };
+    let load_s = started.elapsed().as_secs_f64();
+    let points = cloud.len();
+    let t_build = Instant::now();
+    let kd = KdReference::build(cloud).map_err(anyhow::Error::msg)?;
+    let build_s = t_build.elapsed().as_secs_f64();
+    let result = register_kd(&kd, &q, &config);
+    let end_to_end_s = started.elapsed().as_secs_f64();
+    let (nn_s, check) = timed_passes(a.nn_repeats, || kd_pass(&kd, &q, config.tau_m))?;
+    Ok(json!({
+        "method": "kdtree",
+        "reference_points": points,
+        "load_s": load_s,
+        "build_s": build_s,
+        "end_to_end_s": end_to_end_s,
+        "nn_s_per_iteration": nn_s,
+        "iterations": result.iterations,
+        "status": result.status,
+        "m_world": result.m_world,
+        "rmse_m": result.rmse_m,
+        "inliers": result.inliers,
+        "check": check,
+        "peak_rss_mb": peak_rss_mb(),
+    }))
+}
+
+/// Peak resident set of this process (VmHWM), MiB.
+fn peak_rss_mb() -> f64 {
+    std::fs::read_to_string("/proc/self/status")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("VmHWM:"))
+                .and_then(|l| l.split_whitespace().nth(1)?.parse::<f64>().ok())
+        })
+        .map_or(f64::NAN, |kb| kb / 1024.0)
+}
+
+/// The moving DSM: 700 x 700 px, 1 m inside the references' top-left corner,
+/// written with a known shift (the truth ICP should recover).
+const MOVING_SHIFT_M: [f64; 3] = [1.3, -0.7, 0.9];
+
+fn run(a: RunArgs) -> anyhow::Result<()> {
+    std::fs::create_dir_all(&a.work)?;
+    let exe_dir = std::env::current_exe()?
+        .parent()
+        .context("executable directory")?
+        .to_path_buf();
+    let moving = a.work.join("moving.tif");
+    if !moving.exists() {
+        let s = MOVING_SHIFT_M.map(|v| v.to_string());
+        let mut args = vec!["big", "--size", "700", "--origin", "500001", "4799999"];
+        args.extend(["--pixel-seed", "2", "--shift-m", &s[0], &s[1], &s[2]]);
+        args.extend(["--out", path_str(&moving)?]);
+        tool(&exe_dir.join("dsmgen"), &args)?;
+    }
+    let mut rows = Vec::new();
+    for &size in &a.sizes {
+        let (store, prep) = prepare(&exe_dir, &a.work, &moving, size)?;
+        let side = |method: &str| -> anyhow::Result<Value> {
+            let id = format!("ref_{size}");
+            let samples = a.samples.to_string();
+            let cache = a.cache_mb.to_string();
+            let args = [
+                method,
+                path_str(&store)?,
+                "--reference",
+                &id,
+                "--samples",
+                &samples,
+                "--cache-mb",
+                &cache,
+            ];
+            eprintln!("bench_nn: {method} on {size}^2 ...");
+            let out = std::process::Command::new(std::env::current_exe()?)
+                .args(args)
+                .output()?;
+            if !out.status.success() {
+                let stderr = String::from_utf8_lossy(&out.stderr);
+                let tail: String = stderr.lines().rev().take(3).collect::<Vec<_>>().join(" | ");
+                return Ok(json!({"method": method, "failed": format!("{} {tail}", out.status)}));
+            }
+            Ok(serde_json::from_slice(&out.stdout)?)
+        };
+        let dsm = side("dsm")?;
+        let kd = if a.kd_max_pixels > 0 && size * size > a.kd_max_pixels {
+            json!({"method": "kdtree", "failed": "skipped (--kd-max-pixels)"})
+        } else {
+            side("kdtree")?
+        };
+        let row = Row::new(size, prep, dsm, kd, MOVING_SHIFT_M);
+        eprintln!("{}", row.table_line());
+        rows.push(row);
+        write_csv(&a.csv, &rows)?;
+    }
+    println!("{}", bench_nn_report::table(&rows));
+    write_markdown(
+        &a.markdown,
+        &rows,
+        &std::env::args().collect::<Vec<_>>().join(" "),
+    )?;
+    Ok(())
+}
+
+/// Generation and ingest times of one size (not part of either method).
+#[derive(Clone, Copy, Debug)]
+pub struct Prep {
+    pub generate_s: f64,
+    pub ingest_s: f64,
+}
+
+/// `dsmgen big` the reference and ingest it with the moving DSM into its own store.
+fn prepare(
+    exe_dir: &Path,
+    work: &Path,
+    moving: &Path,
+    size: u64,
+) -> anyhow::Result<(PathBuf, Prep)> {
+    let reference = work.join(format!("ref_{size}.tif"));
+    let store = work.join(format!("s_{size}.zarr"));
+    let mut prep = Prep {
+        generate_s: f64::NAN,
+        ingest_s: f64::NAN,
+    };
+    if !reference.exists() {
+        let t = Instant::now();
+        let size_s = size.to_string();
+        tool(
+            &exe_dir.join("dsmgen"),
+            &["big", "--size", &size_s, "--out", path_str(&reference)?],
+        )?;
+        prep.generate_s = t.elapsed().as_secs_f64();
+    }
+    if !store.join("zarr.json").exists() {
+        let t = Instant::now();
+        let args = [
+            "ingest",
+            path_str(&reference)?,
+            path_str(moving)?,
+            "--store",
+            path_str(&store)?,
+        ];
+        tool(&exe_dir.join("dsmstream"), &args)?;
+        prep.ingest_s = t.elapsed().as_secs_f64();
+    }
+    Ok((store, prep))
+}
+
+fn tool(exe: &Path, args: &[&str]) -> anyhow::Result<()> {
+    eprintln!("bench_nn: {} {}", exe.display(), args.join(" "));
+    let status = std::process::Command::new(exe).args(args).status()?;
+    if !status.success() {
+        bail!("{} {} failed: {status}", exe.display(), args.join(" "));
+    }
+    Ok(())
+}
+
+fn path_str(p: &Path) -> anyhow::Result<&str> {
+    p.to_str()
+        .with_context(|| format!("{}: not UTF-8", p.display()))
+}
