@@ -27,6 +27,7 @@ use dsmstream::grid::Grid;
 use dsmstream::icp::{matrix_rows, register, IcpConfig, Metric};
 use dsmstream::nn::{nearest, NnStats};
 use dsmstream::store::{Store, StoreGrid, StorePyramid};
+use nalgebra::{Matrix4, Point3, Vector3};
 use rayon::prelude::*;
 use serde_json::{json, Value};
 
@@ -150,6 +151,15 @@ fn dsm_side(a: &SideArgs) -> anyhow::Result<Value> {
     let (nn_s, check) = timed_passes(a.nn_repeats, || {
         grid_pass(&store, &cache, r, &q, config.tau_m)
     })?;
+    let peak_rss_mb_compared = peak_rss_mb();
+    // For information: the product's default ICP (point-to-surface, coarse to fine).
+    let t_default = Instant::now();
+    let default_config = IcpConfig {
+        samples: a.samples,
+        ..IcpConfig::default()
+    };
+    let default = register(&ref_pyr, &mov_pyr, &default_config)?;
+    let default_s = t_default.elapsed().as_secs_f64();
     Ok(json!({
         "method": "dsmstream",
         "reference_points": store.dsms()[r].valid_count,
@@ -158,11 +168,15 @@ fn dsm_side(a: &SideArgs) -> anyhow::Result<Value> {
         "iterations": result.iterations,
         "status": result.status,
         "m_world": matrix_rows(&result.m_world),
+        "motion": motion_at(&matrix_rows(&result.m_world), &q.origin),
         "rmse_m": result.rmse_m,
         "inliers": result.inliers,
         "check": check,
+        "default_icp": {"seconds": default_s, "status": default.status, "iterations": default.iterations,
+            "motion": motion_at(&matrix_rows(&default.m_world), &q.origin)},
         "cache": cache.stats(),
-        "peak_rss_mb": peak_rss_mb(),
+        "peak_rss_mb": peak_rss_mb_compared,
+        "peak_rss_mb_after_default_icp": peak_rss_mb(),
     }))
 }
 
@@ -285,11 +299,24 @@ fn kd_side(a: &SideArgs) -> anyhow::Result<Value> {
         "iterations": result.iterations,
         "status": result.status,
         "m_world": result.m_world,
+        "motion": motion_at(&result.m_world, &q.origin),
         "rmse_m": result.rmse_m,
         "inliers": result.inliers,
         "check": check,
         "peak_rss_mb": peak_rss_mb(),
     }))
+}
+
+/// The motion of the local-frame origin (overlap centre) and the rotation angle.
+fn motion_at(m: &[[f64; 4]; 4], origin: &Vector3<f64>) -> Value {
+    let mat = Matrix4::from_fn(|r, c| m[r][c]);
+    let p = mat.transform_point(&Point3::from(*origin));
+    let r = mat.fixed_view::<3, 3>(0, 0);
+    let angle_deg = ((r.trace() - 1.0) / 2.0)
+        .clamp(-1.0, 1.0)
+        .acos()
+        .to_degrees();
+    json!({"shift_m": [p.x - origin.x, p.y - origin.y, p.z - origin.z], "rotation_deg": angle_deg})
 }
 
 /// Peak resident set of this process (VmHWM), MiB.

@@ -24,10 +24,10 @@ fn failed(v: &Value) -> Option<&str> {
     v.get("failed").and_then(Value::as_str)
 }
 
-/// Translation column of a result's m_world.
+/// Motion of the overlap centre under a result's m_world.
 fn shift(v: &Value) -> Option<[f64; 3]> {
-    let m = v.get("m_world")?.as_array()?;
-    let t = |r: usize| m.get(r)?.as_array()?.get(3)?.as_f64();
+    let m = v.get("motion")?.get("shift_m")?.as_array()?;
+    let t = |i: usize| m.get(i)?.as_f64();
     Some([t(0)?, t(1)?, t(2)?])
 }
 
@@ -137,8 +137,8 @@ const HEADER: [&str; 15] = [
     "NN time ratio dsm/kd",
     "iterations dsm/kd",
     "NN results",
-    "dsm shift (m)",
-    "kd shift (m)",
+    "dsm shift at centre (m)",
+    "kd shift at centre (m)",
 ];
 
 pub fn table(rows: &[Row]) -> String {
@@ -235,9 +235,9 @@ mod tests {
             [0, 0, 0, 1]
         ]);
         let dsm = json!({"reference_points": 2e6, "end_to_end_s": 1.0, "nn_s_per_iteration": 0.01,
-            "check": {"inliers": 10, "sum_distance_m": 5.0}, "m_world": m});
+            "check": {"inliers": 10, "sum_distance_m": 5.0}, "motion": m});
         let kd = json!({"end_to_end_s": 8.0, "nn_s_per_iteration": 0.02,
-            "check": {"inliers": 10, "sum_distance_m": 5.01}, "m_world": m});
+            "check": {"inliers": 10, "sum_distance_m": 5.01}, "motion": m});
         let row = Row::new(2000, prep, dsm, kd, [1.3, -0.7, 0.9]);
         let cells = row.cells();
         assert_eq!(cells[1], "2.0");
