@@ -342,17 +342,19 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
         .context("executable directory")?
         .to_path_buf();
     let moving = a.work.join("moving.tif");
+    let mut commands = Vec::new();
+    let s = MOVING_SHIFT_M.map(|v| v.to_string());
+    let mut args = vec!["big", "--size", "700", "--origin", "500001", "4799999"];
+    args.extend(["--pixel-seed", "2", "--shift-m", &s[0], &s[1], &s[2]]);
+    args.extend(["--out", path_str(&moving)?]);
+    commands.push(format!("dsmgen {}", args.join(" ")));
     if !moving.exists() {
-        let s = MOVING_SHIFT_M.map(|v| v.to_string());
-        let mut args = vec!["big", "--size", "700", "--origin", "500001", "4799999"];
-        args.extend(["--pixel-seed", "2", "--shift-m", &s[0], &s[1], &s[2]]);
-        args.extend(["--out", path_str(&moving)?]);
         tool(&exe_dir.join("dsmgen"), &args)?;
     }
     let mut rows = Vec::new();
     for &size in &a.sizes {
-        let (store, prep) = prepare(&exe_dir, &a.work, &moving, size)?;
-        let side = |method: &str| -> anyhow::Result<Value> {
+        let (store, prep) = prepare(&exe_dir, &a.work, &moving, size, &mut commands)?;
+        let mut side = |method: &str| -> anyhow::Result<Value> {
             let id = format!("ref_{size}");
             let samples = a.samples.to_string();
             let cache = a.cache_mb.to_string();
@@ -367,6 +369,7 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
                 &cache,
             ];
             eprintln!("bench_nn: {method} on {size}^2 ...");
+            commands.push(format!("bench_nn {}", args.join(" ")));
             let out = std::process::Command::new(std::env::current_exe()?)
                 .args(args)
                 .output()?;
@@ -389,11 +392,8 @@ fn run(a: RunArgs) -> anyhow::Result<()> {
         write_csv(&a.csv, &rows)?;
     }
     println!("{}", bench_nn_report::table(&rows));
-    write_markdown(
-        &a.markdown,
-        &rows,
-        &std::env::args().collect::<Vec<_>>().join(" "),
-    )?;
+    let command = std::env::args().collect::<Vec<_>>().join(" ");
+    write_markdown(&a.markdown, &rows, &command, &commands)?;
     Ok(())
 }
 
@@ -410,6 +410,7 @@ fn prepare(
     work: &Path,
     moving: &Path,
     size: u64,
+    commands: &mut Vec<String>,
 ) -> anyhow::Result<(PathBuf, Prep)> {
     let reference = work.join(format!("ref_{size}.tif"));
     let store = work.join(format!("s_{size}.zarr"));
@@ -417,25 +418,25 @@ fn prepare(
         generate_s: f64::NAN,
         ingest_s: f64::NAN,
     };
+    let size_s = size.to_string();
+    let generate = ["big", "--size", &size_s, "--out", path_str(&reference)?];
+    let ingest = [
+        "ingest",
+        path_str(&reference)?,
+        path_str(moving)?,
+        "--store",
+        path_str(&store)?,
+    ];
+    commands.push(format!("dsmgen {}", generate.join(" ")));
+    commands.push(format!("dsmstream {}", ingest.join(" ")));
     if !reference.exists() {
         let t = Instant::now();
-        let size_s = size.to_string();
-        tool(
-            &exe_dir.join("dsmgen"),
-            &["big", "--size", &size_s, "--out", path_str(&reference)?],
-        )?;
+        tool(&exe_dir.join("dsmgen"), &generate)?;
         prep.generate_s = t.elapsed().as_secs_f64();
     }
     if !store.join("zarr.json").exists() {
         let t = Instant::now();
-        let args = [
-            "ingest",
-            path_str(&reference)?,
-            path_str(moving)?,
-            "--store",
-            path_str(&store)?,
-        ];
-        tool(&exe_dir.join("dsmstream"), &args)?;
+        tool(&exe_dir.join("dsmstream"), &ingest)?;
         prep.ingest_s = t.elapsed().as_secs_f64();
     }
     Ok((store, prep))

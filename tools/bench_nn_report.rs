@@ -184,7 +184,12 @@ fn shell(cmd: &str) -> String {
 }
 
 /// The dated record: environment, command, table, raw JSON.
-pub fn write_markdown(path: &Path, rows: &[Row], command: &str) -> std::io::Result<()> {
+pub fn write_markdown(
+    path: &Path,
+    rows: &[Row],
+    command: &str,
+    commands: &[String],
+) -> std::io::Result<()> {
     let mut s = String::from("# bench_nn: grid NN (DSM-ICP) vs k-d tree ICP\n\n");
     let _ = writeln!(s, "- date: {}", shell("date -u '+%Y-%m-%d %H:%M UTC'"));
     let _ = writeln!(s, "- commit: {}", shell("git rev-parse --short HEAD"));
@@ -203,7 +208,11 @@ pub fn write_markdown(path: &Path, rows: &[Row], command: &str) -> std::io::Resu
         t[0], t[1], t[2]
     );
     s.push_str(&table(rows));
-    s.push_str("\n## Raw results\n\n```json\n");
+    s.push_str("\n## Commands run (binaries from target/release)\n\n```\n");
+    for c in commands {
+        let _ = writeln!(s, "{c}");
+    }
+    s.push_str("```\n\n## Raw results\n\n```json\n");
     for r in rows {
         let _ = writeln!(
             s,
@@ -228,12 +237,7 @@ mod tests {
             generate_s: 1.0,
             ingest_s: 2.0,
         };
-        let m = json!([
-            [1, 0, 0, 1.3],
-            [0, 1, 0, -0.7],
-            [0, 0, 1, 0.9],
-            [0, 0, 0, 1]
-        ]);
+        let m = json!({"shift_m": [1.3, -0.7, 0.9], "rotation_deg": 0.0});
         let dsm = json!({"reference_points": 2e6, "end_to_end_s": 1.0, "nn_s_per_iteration": 0.01,
             "check": {"inliers": 10, "sum_distance_m": 5.0}, "motion": m});
         let kd = json!({"end_to_end_s": 8.0, "nn_s_per_iteration": 0.02,
