@@ -11,8 +11,8 @@ use std::path::PathBuf;
 use clap::{Parser, Subcommand, ValueEnum};
 use dsmstream::raster::GeoTransform;
 use dsmstream::synth::{
-    epsg_crs, render_window, write_raster, write_tile_set, write_truth_grid, Layout, PixelEffects,
-    Surface, SurfaceParams, SynthError, TileSetParams, TileSpec, Truth,
+    epsg_crs, render_window, tiles::rigid_about, write_raster, write_tile_set, write_truth_grid,
+    Layout, PixelEffects, Surface, SurfaceParams, SynthError, TileSetParams, TileSpec, Truth,
 };
 
 #[derive(Parser)]
@@ -129,6 +129,18 @@ struct BigArgs {
     tile: u32,
     #[arg(long, default_value_t = 32617)]
     epsg: u32,
+    /// Top-left corner (x y, CRS metres); default: the tile sets' origin.
+    #[arg(long, num_args = 2, allow_negative_numbers = true, value_names = ["X", "Y"])]
+    origin: Option<Vec<f64>>,
+    /// Perturb the written data (dx dy dz, metres): p_true = M p_written, M about the raster centre.
+    #[arg(long, num_args = 3, allow_negative_numbers = true, value_names = ["DX", "DY", "DZ"])]
+    shift_m: Option<Vec<f64>>,
+    /// Perturbation rotation (roll pitch yaw, degrees), with --shift-m.
+    #[arg(long, num_args = 3, allow_negative_numbers = true, value_names = ["RX", "RY", "RZ"])]
+    rot_deg: Option<Vec<f64>>,
+    /// Seed of the noise, outliers and voids (default: --seed; the surface always uses --seed).
+    #[arg(long)]
+    pixel_seed: Option<u64>,
     #[arg(long)]
     out: PathBuf,
     /// Also write the same pixels, rendered independently of the COG writer,
@@ -229,12 +241,28 @@ fn big(a: BigArgs) -> Result<(), SynthError> {
         )));
     }
     let defaults = TileSetParams::default();
-    let gt = GeoTransform::north_up(defaults.origin_x_m, defaults.origin_y_m, a.gsd, a.gsd);
-    let spec = TileSpec::unperturbed("big", a.size, a.size, gt, a.seed);
+    let (ox, oy) = match &a.origin {
+        Some(o) => (o[0], o[1]),
+        None => (defaults.origin_x_m, defaults.origin_y_m),
+    };
+    let gt = GeoTransform::north_up(ox, oy, a.gsd, a.gsd);
+    let mut spec = TileSpec::unperturbed("big", a.size, a.size, gt, a.pixel_seed.unwrap_or(a.seed));
     let surface = Surface::new(SurfaceParams {
         seed: a.seed,
         ..Default::default()
     });
+    if a.shift_m.is_some() || a.rot_deg.is_some() {
+        let shift = a.shift_m.as_deref().unwrap_or(&[0.0; 3]);
+        let rot = a.rot_deg.as_deref().unwrap_or(&[0.0; 3]);
+        let half_m = a.size as f64 * a.gsd / 2.0;
+        let centre =
+            nalgebra::Vector3::new(ox + half_m, oy - half_m, surface.params().base_elevation_m);
+        spec.shift_m = [shift[0], shift[1], shift[2]];
+        spec.rot_deg = [rot[0], rot[1], rot[2]];
+        spec.m_world = rigid_about(centre, spec.shift_m, spec.rot_deg);
+        let m = dsmstream::icp::matrix_rows(&spec.m_world);
+        println!("matrix_world (p_true = M p_written): {m:?}");
+    }
     let fx = PixelEffects {
         noise_sigma_m: a.noise,
         outlier_fraction: a.outliers,
