@@ -222,3 +222,48 @@ pub fn write_truth_grid(
         &|_, _| {},
     )
 }
+/// How far a set of poses is from the truth, up to the common gauge: over every
+/// pair of tiles, the disagreement of M_i^-1 M_j with the truth's, measured as
+/// the displacement of the second tile's centre (at 200 m height) and as an angle.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PairwiseError {
+    pub mean_m: f64,
+    pub worst_m: f64,
+    pub worst_deg: f64,
+}
+
+impl Truth {
+    pub fn pairwise_error(&self, poses: &crate::poses::PosesFile) -> PairwiseError {
+        use nalgebra::{Matrix4, Vector4};
+        let m = |rows: &[[f64; 4]; 4]| Matrix4::from_fn(|r, c| rows[r][c]);
+        let inv = |x: &Matrix4<f64>| x.try_inverse().unwrap_or_else(Matrix4::identity);
+        let (mut sum, mut n, mut worst_m, mut worst_deg) = (0.0, 0usize, 0.0f64, 0.0f64);
+        for (a, ta) in self.tiles.iter().enumerate() {
+            for tb in &self.tiles[a + 1..] {
+                let (Some(ea), Some(eb)) = (poses.pose(&ta.id), poses.pose(&tb.id)) else {
+                    continue;
+                };
+                let d = inv(&(inv(&m(&ta.matrix_world)) * m(&tb.matrix_world))) * (inv(ea) * eb);
+                let g = tb.geotransform;
+                let centre = Vector4::new(
+                    g[0] + g[1] * tb.width as f64 / 2.0,
+                    g[3] + g[5] * tb.height as f64 / 2.0,
+                    200.0,
+                    1.0,
+                );
+                let disp = (d * centre - centre).xyz().norm();
+                let trace = d[(0, 0)] + d[(1, 1)] + d[(2, 2)];
+                sum += disp;
+                n += 1;
+                worst_m = worst_m.max(disp);
+                worst_deg =
+                    worst_deg.max(((trace - 1.0) / 2.0).clamp(-1.0, 1.0).acos().to_degrees());
+            }
+        }
+        PairwiseError {
+            mean_m: sum / n.max(1) as f64,
+            worst_m,
+            worst_deg,
+        }
+    }
+}
