@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use dsmstream::cache::ChunkCache;
-use dsmstream::eval::{evaluate, EvalConfig, EvalError, EvalReport, PlotData};
+use dsmstream::eval::{evaluate, DiffStats, EvalConfig, EvalError, EvalReport, PlotData};
 use dsmstream::fuse::{FuseError, PlacedDsm, PoseSet};
 use dsmstream::plots::{
     diff_map_png, histogram_png, scene_graph_png, GraphEdge, GraphNode, MapGrid, Series,
@@ -169,13 +169,13 @@ fn write_plots(
     if !data.pairs_before.is_empty() {
         let path = dir.join("hist_pairs.png");
         let mut series = vec![Series {
-            label: legend("before", report.mean_before.map(|s| s.rmse_tau_m)),
+            label: legend("before (mean over pairs)", report.mean_before),
             values: &data.pairs_before,
             colour: BEFORE,
         }];
         if poses.is_some() {
             series.push(Series {
-                label: legend("after", report.mean_after.map(|s| s.rmse_tau_m)),
+                label: legend("after (mean over pairs)", report.mean_after),
                 values: &data.pairs_after,
                 colour: AFTER,
             });
@@ -196,13 +196,13 @@ fn write_plots(
         let (before_in, after_in) = (inl(&before), inl(&after));
         let path = dir.join("hist_reference.png");
         let mut series = vec![Series {
-            label: legend("before", Some(r.before.rmse_tau_m)),
+            label: legend("before", Some(r.before)),
             values: &before_in,
             colour: BEFORE,
         }];
         if let Some(a) = &r.after {
             series.push(Series {
-                label: legend("after", Some(a.rmse_tau_m)),
+                label: legend("after", Some(*a)),
                 values: &after_in,
                 colour: AFTER,
             });
@@ -250,10 +250,13 @@ fn write_plots(
     Ok(written)
 }
 
-fn legend(set: &str, rmse: Option<f64>) -> String {
-    match rmse {
-        Some(v) => format!("{set}: rmse_tau {v:.3} m"),
-        None => set.to_string(),
+fn legend(set: &str, stats: Option<DiffStats>) -> String {
+    match stats {
+        Some(s) if s.inliers > 0 => format!(
+            "{set}: rmse_tau {:.3} m, median {:.3} m, NMAD {:.3} m",
+            s.rmse_tau_m, s.median_m, s.nmad_m
+        ),
+        _ => set.to_string(),
     }
 }
 

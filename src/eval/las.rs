@@ -41,7 +41,7 @@ impl LasSamples {
                     "CRS EPSG:{a} differs from the store's EPSG:{b}"
                 )))
             }
-            (Some(_), Some(_)) => {}
+            (Some(a), Some(_)) => notes.push(format!("point cloud CRS EPSG:{a}, as the store")),
             (Some(a), None) => notes.push(format!(
                 "the point cloud is EPSG:{a}; the store has no EPSG code, assumed the same"
             )),
@@ -84,11 +84,16 @@ impl LasSamples {
             }
         }
         notes.push(format!(
-            "{seen} points, {kept_filter} after filtering ({}), every {stride}th kept",
+            "{seen} points, {kept_filter} after filtering ({}), {}",
             if config.all_returns {
                 "noise and withheld removed"
             } else {
-                "first returns, noise and withheld removed"
+                "first returns only, noise and withheld removed"
+            },
+            if stride > 1 {
+                format!("every {stride}th kept")
+            } else {
+                "all kept".to_string()
             }
         ));
         Ok(LasSamples { points, notes })

@@ -50,6 +50,17 @@ impl Canvas {
         }
     }
 
+    /// Mix `c` into the pixel with weight `alpha` (0..=1).
+    #[inline]
+    pub fn blend(&mut self, x: i64, y: i64, c: Color, alpha: f64) {
+        if x >= 0 && y >= 0 && (x as u32) < self.img.width() && (y as u32) < self.img.height() {
+            let p = self.img.get_pixel_mut(x as u32, y as u32);
+            for k in 0..3 {
+                p.0[k] = (p.0[k] as f64 * (1.0 - alpha) + c[k] as f64 * alpha).round() as u8;
+            }
+        }
+    }
+
     pub fn fill_rect(&mut self, x0: i64, y0: i64, w: i64, h: i64, c: Color) {
         for y in y0..y0 + h {
             for x in x0..x0 + w {
@@ -97,6 +108,40 @@ impl Canvas {
                     }
                 }
             }
+        }
+    }
+
+    /// A quadratic Bezier curve from `a` to `b` bowed sideways by `bow` times
+    /// its length (so edges between aligned nodes do not hide each other).
+    pub fn arc(
+        &mut self,
+        a: (f64, f64),
+        b: (f64, f64),
+        bow: f64,
+        c: Color,
+        thickness: u32,
+        dash: Option<u32>,
+    ) {
+        let (mx, my) = ((a.0 + b.0) / 2.0, (a.1 + b.1) / 2.0);
+        let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+        let ctrl = (mx - dy * bow, my + dx * bow);
+        let len = (dx * dx + dy * dy).sqrt();
+        let segments = ((len / 6.0).ceil() as usize).clamp(1, 400);
+        let point = |t: f64| {
+            let u = 1.0 - t;
+            (
+                u * u * a.0 + 2.0 * u * t * ctrl.0 + t * t * b.0,
+                u * u * a.1 + 2.0 * u * t * ctrl.1 + t * t * b.1,
+            )
+        };
+        let mut prev = a;
+        for k in 1..=segments {
+            let next = point(k as f64 / segments as f64);
+            let visible = dash.is_none_or(|_| k % 2 == 1);
+            if visible {
+                self.line(prev, next, c, thickness, None);
+            }
+            prev = next;
         }
     }
 

@@ -9,6 +9,23 @@ use super::canvas::{Align, Canvas, BLACK, GREY};
 use super::colormap::ColorMap;
 use super::PlotError;
 
+/// Sideways bow of edge curves, as a fraction of their length.
+const EDGE_BOW: f64 = 0.12;
+
+/// Tableau-10 hues for footprints (edges use viridis).
+const FOOTPRINT_HUES: [[u8; 3]; 10] = [
+    [31, 119, 180],
+    [255, 127, 14],
+    [44, 160, 44],
+    [214, 39, 40],
+    [148, 103, 189],
+    [140, 86, 75],
+    [227, 119, 194],
+    [127, 127, 127],
+    [188, 189, 34],
+    [23, 190, 207],
+];
+
 /// One DSM: its id and (corrected) footprint [min_x, min_y, max_x, max_y].
 #[derive(Clone, Debug)]
 pub struct GraphNode {
@@ -35,9 +52,6 @@ pub fn scene_graph_png(
     value_label: &str,
     title: &str,
 ) -> Result<(), PlotError> {
-    let (cw, ch) = (1100i64, 850i64);
-    let mut c = Canvas::new(cw as u32, ch as u32);
-    c.text(cw / 2, 14, title, BLACK, 2, Align::Centre);
     let b = nodes.iter().fold(
         [
             f64::INFINITY,
@@ -60,30 +74,34 @@ pub fn scene_graph_png(
             path.display()
         )));
     }
-    // equal scale: fit the data box into the plot box, pad 3 %
-    let (box_w, box_h) = (cw - 120 - 170, ch - 60 - 80);
+    // equal scale: fit the data box (padded 3 %) into at most 800 x 640 px
     let pad = 0.03 * (b[2] - b[0]).max(b[3] - b[1]);
     let (dx, dy) = (b[2] - b[0] + 2.0 * pad, b[3] - b[1] + 2.0 * pad);
-    let scale = (box_w as f64 / dx).min(box_h as f64 / dy);
+    let scale = (800.0 / dx).min(640.0 / dy);
     let (w, h) = ((dx * scale) as i64, (dy * scale) as i64);
+    let (cw, ch) = (120 + w.max(500) + 190, 70 + h.max(300) + 90);
+    let mut c = Canvas::new(cw as u32, ch as u32);
+    c.text(cw / 2, 14, title, BLACK, 2, Align::Centre);
     let frame = Frame {
-        left: 120 + (box_w - w) / 2,
-        top: 60 + (box_h - h) / 2,
+        left: 120 + (w.max(500) - w) / 2,
+        top: 70 + (h.max(300) - h) / 2,
         width: w,
         height: h,
         x_range: (b[0] - pad, b[2] + pad),
         y_range: (b[1] - pad, b[3] + pad),
     };
-    for n in nodes {
+    // footprints: a light tint and an outline each, in a cycle of distinct hues
+    for (k, n) in nodes.iter().enumerate() {
+        let hue = FOOTPRINT_HUES[k % FOOTPRINT_HUES.len()];
         let (x0, y0) = frame.to_px(n.bounds[0], n.bounds[3]);
         let (x1, y1) = frame.to_px(n.bounds[2], n.bounds[1]);
-        c.rect(
-            x0 as i64,
-            y0 as i64,
-            (x1 - x0) as i64,
-            (y1 - y0) as i64,
-            GREY,
-        );
+        let (x0, y0, x1, y1) = (x0 as i64, y0 as i64, x1 as i64, y1 as i64);
+        for y in y0..y1 {
+            for x in x0..x1 {
+                let edge = x == x0 || x == x1 - 1 || y == y0 || y == y1 - 1;
+                c.blend(x, y, hue, if edge { 0.7 } else { 0.06 });
+            }
+        }
     }
     let finite: Vec<f64> = edges
         .iter()
@@ -107,17 +125,20 @@ pub fn scene_graph_png(
     });
     for e in order {
         let (p, q) = (centre(&nodes[e.a]), centre(&nodes[e.b]));
-        if e.dropped || !e.value_m.is_finite() {
-            c.line(p, q, GREY, 2, Some(6));
+        let colour = if e.dropped || !e.value_m.is_finite() {
+            GREY
         } else {
-            c.line(
-                p,
-                q,
-                ColorMap::Viridis.at(e.value_m / vmax),
-                thickness,
-                None,
-            );
-        }
+            ColorMap::Viridis.at(e.value_m / vmax)
+        };
+        let dash = (colour == GREY).then_some(1);
+        c.arc(
+            p,
+            q,
+            EDGE_BOW,
+            colour,
+            if dash.is_some() { 2 } else { thickness },
+            dash,
+        );
     }
     let label_ids = nodes.len() <= 60;
     for n in nodes {

@@ -1,6 +1,7 @@
 //! Overlaid histograms of height differences: the first series filled, the
 //! others as thick step outlines, each normalised to its share of samples per
-//! bin, over a range symmetric about 0 that holds 99 % of the samples.
+//! bin (of all the series' samples, shown or not), over a range symmetric
+//! about 0 that holds 97 % of them.
 
 use std::path::Path;
 
@@ -24,17 +25,17 @@ pub fn histogram_png(
     x_label: &str,
     title: &str,
 ) -> Result<(), PlotError> {
-    let p99 = percentile(
+    let p97 = percentile(
         series
             .iter()
             .flat_map(|s| s.values.iter().map(|v| (*v as f64).abs())),
-        99.0,
+        97.0,
     );
-    if !p99.is_finite() {
+    if !p97.is_finite() {
         return Err(PlotError(format!("{}: no values to draw", path.display())));
     }
-    let step = nice_step((p99 / 4.0).max(1e-3));
-    let range = (p99 / step).ceil() * step;
+    let step = nice_step((p97 / 4.0).max(1e-3));
+    let range = (p97 / step).ceil() * step;
     let width_bin = 2.0 * range / BINS as f64;
     let shares: Vec<Vec<f64>> = series
         .iter()

@@ -93,7 +93,7 @@ pub fn diff_map_png(
     let side = 480.0;
     let scale = (side / dx).min(side / dy);
     let (pw, ph) = ((dx * scale).round() as i64, (dy * scale).round() as i64);
-    let gap = 150;
+    let gap = 120;
     let (left0, top) = (120, 80);
     let cw = left0 + panels.len() as i64 * (pw + gap) + 40;
     let ch = top + ph + 90;
