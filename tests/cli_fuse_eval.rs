@@ -265,7 +265,8 @@ fn poses_that_do_not_match_the_store_are_refused_without_output() {
     let data = fixtures().join("synth/chain4");
     let store = ingest(&data, dir.path());
     let truth = data.join("truth.json");
-    let cases: Vec<(&str, Box<dyn FnOnce(&mut Vec<Value>)>, &str)> = vec![
+    type Edit = Box<dyn FnOnce(&mut Vec<Value>)>;
+    let cases: Vec<(&str, Edit, &str)> = vec![
         (
             "missing",
             Box::new(|p| {

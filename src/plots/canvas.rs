@@ -55,8 +55,8 @@ impl Canvas {
     pub fn blend(&mut self, x: i64, y: i64, c: Color, alpha: f64) {
         if x >= 0 && y >= 0 && (x as u32) < self.img.width() && (y as u32) < self.img.height() {
             let p = self.img.get_pixel_mut(x as u32, y as u32);
-            for k in 0..3 {
-                p.0[k] = (p.0[k] as f64 * (1.0 - alpha) + c[k] as f64 * alpha).round() as u8;
+            for (v, &target) in p.0.iter_mut().zip(&c) {
+                *v = (*v as f64 * (1.0 - alpha) + target as f64 * alpha).round() as u8;
             }
         }
     }

@@ -6,7 +6,7 @@
 use std::path::Path;
 
 use super::axes::{nice_step, Frame};
-use super::canvas::{Align, Canvas, Color, BLACK};
+use super::canvas::{Align, Canvas, Color, BLACK, GREY, WHITE};
 use super::{percentile, PlotError};
 
 /// One set of values with its legend label and colour.
@@ -98,6 +98,15 @@ pub fn histogram_png(
     }
     frame.draw_x_grid(&mut c);
     frame.draw_axes(&mut c, x_label, "share of samples per bin (%)");
+    let widest = series
+        .iter()
+        .map(|s| Canvas::text_width(&s.label, 1))
+        .max()
+        .unwrap_or(0);
+    let (lx, ly) = (frame.left + 8, frame.top + 6);
+    let box_h = 20 * series.len() as i64 + 8;
+    c.fill_rect(lx, ly, widest + 50, box_h, WHITE);
+    c.rect(lx, ly, widest + 50, box_h, GREY);
     for (k, s) in series.iter().enumerate() {
         let y = frame.top + 12 + 20 * k as i64;
         let x = frame.left + 14;
