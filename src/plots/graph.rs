@@ -103,8 +103,10 @@ pub fn scene_graph_png(
             }
         }
     }
+    // the colour scale covers the kept edges (dropped ones are grey)
     let finite: Vec<f64> = edges
         .iter()
+        .filter(|e| !e.dropped)
         .map(|e| e.value_m)
         .filter(|v| v.is_finite())
         .collect();

@@ -34,3 +34,6 @@ pub(crate) fn percentile(values: impl Iterator<Item = f64>, q: f64) -> f64 {
     let pos = (q / 100.0 * (v.len() - 1) as f64).round() as usize;
     v[pos.min(v.len() - 1)]
 }
+
+#[cfg(test)]
+mod tests;
