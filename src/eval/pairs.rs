@@ -2,9 +2,12 @@
 //! height differences dh = z_j - z_i of their corrected surfaces at the same
 //! horizontal locations, before (identity) and after the poses.
 //!
-//! Sample locations are level-0 pixel centres of DSM i (the lower store index)
-//! with a stride of 2^k pixels, the smallest that keeps at most `max_samples`
-//! locations in the overlap box, so "before" reads DSM i's pixels exactly.
+//! The samples are the level-0 pixels of DSM i (the lower store index), with a
+//! stride of 2^k pixels, the smallest that keeps at most `max_samples` in the
+//! overlap box. Each pixel is moved by M_i to (X, Y, z_i) and compared with the
+//! corrected surface of DSM j at (X, Y), so only DSM j is interpolated (an
+//! interpolated DSM i would smear its outliers over neighbouring samples and
+//! make the figures depend on where the lattice falls).
 
 use rayon::prelude::*;
 use serde::Serialize;
@@ -123,20 +126,12 @@ fn eval_pair(
     for r in (r0..r1).step_by(stride as usize) {
         for c in (c0..c1).step_by(stride as usize) {
             let (x, y) = gt.pixel_to_world(c as f64 + 0.5, r as f64 + 0.5);
-            let zi = raw.height(i, x, y)?;
-            if !zi.is_nan() {
-                let zj = raw.height(j, x, y)?;
-                if !zj.is_nan() {
-                    dh_before.push((zj - zi) as f32);
-                }
+            if let Some(d) = pixel_to_surface(&mut raw, i, j, x, y)? {
+                dh_before.push(d);
             }
             if let Some(s) = corrected.as_mut() {
-                let zi = s.height(i, x, y)?;
-                if !zi.is_nan() {
-                    let zj = s.height(j, x, y)?;
-                    if !zj.is_nan() {
-                        dh_after.push((zj - zi) as f32);
-                    }
+                if let Some(d) = pixel_to_surface(s, i, j, x, y)? {
+                    dh_after.push(d);
                 }
             }
         }
@@ -164,6 +159,21 @@ fn eval_pair(
         after: after_stats,
     };
     Ok((pair, thin(&dh_before), thin(&dh_after)))
+}
+
+/// z_j(X, Y) - Z for the pixel of DSM i at (x, y) moved to (X, Y, Z).
+fn pixel_to_surface(
+    s: &mut Surfaces,
+    i: usize,
+    j: usize,
+    x: f64,
+    y: f64,
+) -> Result<Option<f32>, EvalError> {
+    let Some([px, py, pz]) = s.moved_point(i, x, y)? else {
+        return Ok(None);
+    };
+    let zj = s.height(j, px, py)?;
+    Ok((!zj.is_nan()).then(|| (zj - pz) as f32))
 }
 
 fn union(a: [f64; 4], b: [f64; 4]) -> [f64; 4] {

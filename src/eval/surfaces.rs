@@ -59,6 +59,26 @@ impl<'a> Surfaces<'a> {
 
     /// Corrected height of DSM `dsm` at world (x, y); NaN where it has none.
     pub fn height(&mut self, dsm: usize, x: f64, y: f64) -> Result<f64, EvalError> {
+        Ok(self.surface(dsm)?.height_at(x, y))
+    }
+
+    /// The corrected position M (x, y, h) of the DSM point whose uncorrected
+    /// position is (x, y) (a pixel centre reads the pixel itself); None on no-data.
+    pub fn moved_point(
+        &mut self,
+        dsm: usize,
+        x: f64,
+        y: f64,
+    ) -> Result<Option<[f64; 3]>, EvalError> {
+        let pose = &self.placement.poses[dsm];
+        let h = self.surface(dsm)?.bilinear(x, y);
+        Ok((!h.is_nan()).then(|| pose.apply([x, y, h])))
+    }
+
+    fn surface(
+        &mut self,
+        dsm: usize,
+    ) -> Result<&mut CorrectedSurface<'a, StoreGrid<'a>>, EvalError> {
         if self.open[dsm].is_none() {
             let grid = StoreGrid::new(self.store, self.cache, dsm, 0)?;
             let p = &self.placement.placed[dsm];
@@ -68,8 +88,7 @@ impl<'a> Surfaces<'a> {
                 p.z_start_m,
             ));
         }
-        let surface = self.open[dsm].as_mut().expect("opened above");
-        Ok(surface.height_at(x, y))
+        Ok(self.open[dsm].as_mut().expect("opened above"))
     }
 
     /// Median of the corrected heights of every DSM covering (x, y); NaN if none.
