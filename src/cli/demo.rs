@@ -153,6 +153,19 @@ fn fuse_and_eval(
     for (graph, path) in &gauged {
         sets.push((graph, Some(PoseSet::from_file(&store, path)?)));
     }
+    // the truth's own matrices: the best any registration can do on this data
+    let mut truth_file = rows[0].1.clone();
+    truth_file.edges.clear();
+    for p in &mut truth_file.poses {
+        if let Some(t) = truth.tiles.iter().find(|t| t.id == p.id) {
+            p.matrix_world = Matrix4::from_fn(|r, c| t.matrix_world[r][c]);
+        }
+    }
+    let truth_json = args.data.join("truth.json");
+    sets.push((
+        "truth",
+        Some(PoseSet::from_parsed(&store, &truth_json, truth_file)?),
+    ));
     for (name, poses) in &sets {
         let (report, _) = evaluate(&store, &cache, poses.as_ref(), Some(&truth_tif), &config)?;
         let pairs = report.mean_after.or(report.mean_before).unwrap_or_default();
