@@ -173,7 +173,7 @@ fn pixel_to_surface(
         return Ok(None);
     };
     let zj = s.height(j, px, py)?;
-    Ok((!zj.is_nan()).then(|| (zj - pz) as f32))
+    Ok((!zj.is_nan()).then_some((zj - pz) as f32))
 }
 
 fn union(a: [f64; 4], b: [f64; 4]) -> [f64; 4] {
