@@ -1,8 +1,142 @@
-//! `dsmstream fuse` (in progress).
+//! `dsmstream fuse <store> --poses poses.json --out fused.tif`: the registered
+//! mosaic as a Cloud-Optimized GeoTIFF (and `--per-dsm DIR`: each corrected DSM
+//! on its own), with a progress bar over tiles.
+
+use std::path::PathBuf;
+
+use dsmstream::cache::ChunkCache;
+use dsmstream::fuse::{fuse, fuse_per_dsm, FuseConfig, FuseError, FuseMethod, PoseSet, TILE_SIZE};
+use dsmstream::InputError;
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+
+use super::pair::open_store;
 
 #[derive(clap::Args, Debug)]
-pub struct Args {}
+pub struct Args {
+    /// The store directory.
+    pub store: PathBuf,
+    /// poses.json from `dsmstream align` (omit to mosaic the raw collection).
+    #[arg(long)]
+    pub poses: Option<PathBuf>,
+    /// The fused GeoTIFF (written to a temporary name, then renamed).
+    #[arg(long, required_unless_present = "per_dsm")]
+    pub out: Option<PathBuf>,
+    /// Output cell in CRS units (default: the finest input cell); a coarser cell
+    /// reads the matching store overview.
+    #[arg(long)]
+    pub gsd: Option<f64>,
+    /// How overlapping corrected heights are combined.
+    #[arg(long, value_enum, default_value = "median")]
+    pub method: FuseMethod,
+    /// Also write each corrected DSM alone as DIR/<id>.tif.
+    #[arg(long)]
+    pub per_dsm: Option<PathBuf>,
+    /// Chunk cache budget in MiB, shared by all workers.
+    #[arg(long, default_value_t = 256)]
+    pub cache_mb: usize,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+}
 
-pub fn run(_args: Args) -> anyhow::Result<()> {
-    anyhow::bail!("`fuse` is not built yet")
+pub fn run(args: Args) -> anyhow::Result<()> {
+    release_large_buffers_on_free();
+    let threads = args
+        .threads
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    if threads == 0 {
+        return Err(InputError::new("--threads must be at least 1").into());
+    }
+    let store = open_store(&args.store)?;
+    let poses = match &args.poses {
+        Some(p) => PoseSet::from_file(&store, p).map_err(to_anyhow)?,
+        None => PoseSet::identity(&store),
+    };
+    let config = FuseConfig {
+        gsd_m: args.gsd,
+        method: args.method,
+        threads,
+        tile_size: TILE_SIZE,
+    };
+    let cache = ChunkCache::new(args.cache_mb.max(1) << 20);
+    let bar = ProgressBar::with_draw_target(Some(0), ProgressDrawTarget::stderr());
+    bar.set_style(
+        ProgressStyle::with_template("{bar:30} {pos}/{len} tiles {per_sec} eta {eta} {msg}")
+            .expect("valid template"),
+    );
+    if !tracing::enabled!(tracing::Level::WARN) {
+        bar.set_draw_target(ProgressDrawTarget::hidden());
+    }
+    let progress = |done: u64, total: u64| {
+        bar.set_length(total);
+        bar.set_position(done);
+    };
+    if let Some(out) = &args.out {
+        bar.set_message(out.display().to_string());
+        let r = fuse(&store, &cache, &poses, &config, out, &progress).map_err(to_anyhow)?;
+        bar.finish_and_clear();
+        println!(
+            "fused {} DSMs (poses: {}) into {}: {} x {} px at {} m, {:.1}% valid, {:.1} s",
+            r.dsms,
+            poses.label(),
+            out.display(),
+            r.width,
+            r.height,
+            r.gsd_m,
+            100.0 * r.valid_pixels as f64 / (r.width * r.height) as f64,
+            r.seconds
+        );
+    }
+    if let Some(dir) = &args.per_dsm {
+        let reports =
+            fuse_per_dsm(&store, &cache, &poses, &config, dir, &progress).map_err(to_anyhow)?;
+        bar.finish_and_clear();
+        for r in &reports {
+            println!(
+                "wrote {}: {} x {} px at {} m",
+                r.path.display(),
+                r.width,
+                r.height,
+                r.gsd_m
+            );
+        }
+    }
+    cache.log_stats();
+    let s = cache.stats();
+    tracing::info!(
+        hits = s.hits,
+        misses = s.misses,
+        peak_mb = s.peak_bytes >> 20,
+        "cache reported"
+    );
+    Ok(())
+}
+
+/// glibc raises its mmap threshold past the 1 MiB chunk buffers once the first
+/// one is freed, and from then on keeps freed chunks in per-thread arenas: a fuse
+/// of 64 DSMs of 4096 px with a 128 MiB cache peaked at 297 MB RSS, and at
+/// 149 MB with a fixed 128 KiB threshold (same run time). With the threshold
+/// fixed, every large buffer is its own mapping, returned to the system when
+/// freed, so the resident size follows the cache budget.
+pub(crate) fn release_large_buffers_on_free() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    {
+        extern "C" {
+            fn mallopt(param: i32, value: i32) -> i32;
+        }
+        const M_MMAP_THRESHOLD: i32 = -3;
+        // SAFETY: mallopt only tunes the allocator (it takes its own locks); an
+        // unsupported value is refused with a 0 return, which we can ignore.
+        unsafe {
+            mallopt(M_MMAP_THRESHOLD, 128 * 1024);
+        }
+    }
+}
+
+fn to_anyhow(e: FuseError) -> anyhow::Error {
+    if e.is_bad_input() {
+        anyhow::Error::new(InputError::new(e.to_string()))
+    } else {
+        anyhow::Error::new(e)
+    }
 }

@@ -1,0 +1,195 @@
+//! Pairwise agreement: for every pair of DSMs whose footprints overlap, the
+//! height differences dh = z_j - z_i of their corrected surfaces at the same
+//! horizontal locations, before (identity) and after the poses.
+//!
+//! The samples are the level-0 pixels of DSM i (the lower store index), with a
+//! stride of 2^k pixels, the smallest that keeps at most `max_samples` in the
+//! overlap box. Each pixel is moved by M_i to (X, Y, z_i) and compared with the
+//! corrected surface of DSM j at (X, Y), so only DSM j is interpolated (an
+//! interpolated DSM i would smear its outliers over neighbouring samples and
+//! make the figures depend on where the lattice falls).
+
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::stats::{diff_stats, DiffStats, Thinned};
+use super::surfaces::{Placement, Surfaces};
+use super::{EvalConfig, EvalError};
+use crate::cache::ChunkCache;
+use crate::plan::{candidate_pairs, Footprint};
+use crate::store::Store;
+
+/// Samples per pair and set kept for the histograms.
+const PLOT_SAMPLES_PER_PAIR: usize = 20_000;
+
+/// One overlapping pair.
+#[derive(Clone, Debug, Serialize)]
+pub struct PairEval {
+    pub i: String,
+    pub j: String,
+    /// Lattice stride in level-0 pixels of DSM i.
+    pub stride_px: u64,
+    /// Identity poses.
+    pub before: DiffStats,
+    /// With the poses (None when evaluating the raw collection).
+    pub after: Option<DiffStats>,
+}
+
+/// Every pair, and thinned inlier differences for the histograms.
+pub struct PairsOutcome {
+    pub pairs: Vec<PairEval>,
+    pub plot_before: Thinned,
+    pub plot_after: Thinned,
+}
+
+/// Evaluate every overlapping pair (pairs run in parallel on `pool`).
+pub fn eval_pairs(
+    store: &Store,
+    cache: &ChunkCache,
+    before: &Placement,
+    after: Option<&Placement>,
+    config: &EvalConfig,
+    pool: &rayon::ThreadPool,
+) -> Result<PairsOutcome, EvalError> {
+    // a pair counts when it overlaps before or after correction
+    let footprints: Vec<Footprint> = before
+        .placed
+        .iter()
+        .enumerate()
+        .map(|(k, p)| Footprint {
+            index: k,
+            bounds: match after {
+                Some(a) => union(p.corrected_bounds, a.placed[k].corrected_bounds),
+                None => p.corrected_bounds,
+            },
+        })
+        .collect();
+    let pairs = candidate_pairs(&footprints);
+    let results = pool.install(|| {
+        pairs
+            .par_iter()
+            .map(|&(i, j)| {
+                let region = intersect(footprints[i].bounds, footprints[j].bounds);
+                eval_pair(store, cache, before, after, config, i, j, region)
+            })
+            .collect::<Result<Vec<_>, _>>()
+    })?;
+    let mut plot_before = Thinned::new(1_000_000);
+    let mut plot_after = Thinned::new(1_000_000);
+    let mut out = Vec::with_capacity(results.len());
+    for (pair, b, a) in results {
+        plot_before.extend(&b);
+        plot_after.extend(&a);
+        out.push(pair);
+    }
+    Ok(PairsOutcome {
+        pairs: out,
+        plot_before,
+        plot_after,
+    })
+}
+
+#[allow(clippy::too_many_arguments)]
+fn eval_pair(
+    store: &Store,
+    cache: &ChunkCache,
+    before: &Placement,
+    after: Option<&Placement>,
+    config: &EvalConfig,
+    i: usize,
+    j: usize,
+    region: [f64; 4],
+) -> Result<(PairEval, Vec<f32>, Vec<f32>), EvalError> {
+    let meta = &store.dsms()[i];
+    let gt = meta.geotransform;
+    // level-0 pixel range of DSM i inside the region
+    let (c0, r0) = gt.world_to_pixel(region[0], region[3]);
+    let (c1, r1) = gt.world_to_pixel(region[2], region[1]);
+    let clamp = |v: f64, n: u64| v.max(0.0).min(n as f64);
+    let (c0, c1) = (
+        clamp(c0.floor(), meta.width) as u64,
+        clamp(c1.ceil(), meta.width) as u64,
+    );
+    let (r0, r1) = (
+        clamp(r0.floor(), meta.height) as u64,
+        clamp(r1.ceil(), meta.height) as u64,
+    );
+    let (w, h) = (c1.saturating_sub(c0), r1.saturating_sub(r0));
+    let mut stride = 1u64;
+    while w.div_ceil(stride) * h.div_ceil(stride) > config.max_samples.max(1) {
+        stride *= 2;
+    }
+    let mut raw = Surfaces::new(store, cache, before);
+    let mut corrected = after.map(|a| Surfaces::new(store, cache, a));
+    let mut dh_before = Vec::new();
+    let mut dh_after = Vec::new();
+    for r in (r0..r1).step_by(stride as usize) {
+        for c in (c0..c1).step_by(stride as usize) {
+            let (x, y) = gt.pixel_to_world(c as f64 + 0.5, r as f64 + 0.5);
+            if let Some(d) = pixel_to_surface(&mut raw, i, j, x, y)? {
+                dh_before.push(d);
+            }
+            if let Some(s) = corrected.as_mut() {
+                if let Some(d) = pixel_to_surface(s, i, j, x, y)? {
+                    dh_after.push(d);
+                }
+            }
+        }
+    }
+    let errors = raw
+        .take_error()
+        .or_else(|| corrected.as_mut().and_then(|s| s.take_error()));
+    if let Some(e) = errors {
+        return Err(EvalError::Read(format!("{}: {e}", store.root().display())));
+    }
+    let before_stats = diff_stats(&mut dh_before, config.tau_m);
+    let after_stats = corrected
+        .is_some()
+        .then(|| diff_stats(&mut dh_after, config.tau_m));
+    let thin = |v: &[f32]| {
+        let mut t = Thinned::new(PLOT_SAMPLES_PER_PAIR);
+        t.extend(v); // diff_stats left the inliers, sorted: thinning keeps the spread
+        t.values
+    };
+    let pair = PairEval {
+        i: meta.id.clone(),
+        j: store.dsms()[j].id.clone(),
+        stride_px: stride,
+        before: before_stats,
+        after: after_stats,
+    };
+    Ok((pair, thin(&dh_before), thin(&dh_after)))
+}
+
+/// z_j(X, Y) - Z for the pixel of DSM i at (x, y) moved to (X, Y, Z).
+fn pixel_to_surface(
+    s: &mut Surfaces,
+    i: usize,
+    j: usize,
+    x: f64,
+    y: f64,
+) -> Result<Option<f32>, EvalError> {
+    let Some([px, py, pz]) = s.moved_point(i, x, y)? else {
+        return Ok(None);
+    };
+    let zj = s.height(j, px, py)?;
+    Ok((!zj.is_nan()).then_some((zj - pz) as f32))
+}
+
+fn union(a: [f64; 4], b: [f64; 4]) -> [f64; 4] {
+    [
+        a[0].min(b[0]),
+        a[1].min(b[1]),
+        a[2].max(b[2]),
+        a[3].max(b[3]),
+    ]
+}
+
+fn intersect(a: [f64; 4], b: [f64; 4]) -> [f64; 4] {
+    [
+        a[0].max(b[0]),
+        a[1].max(b[1]),
+        a[2].min(b[2]),
+        a[3].min(b[3]),
+    ]
+}
