@@ -38,24 +38,58 @@ pub trait RowSource: Send {
     fn raster(&self) -> &SourceRaster;
     /// Rows `row0 .. row0 + rows`, row-major (`width * rows` values), NaN for no-data.
     fn read_rows(&mut self, row0: u64, rows: u64) -> Result<Vec<f32>, SourceError>;
+
+    /// As [`read_rows`](Self::read_rows), into `out` (replaced), so a caller
+    /// streaming a large raster can reuse one buffer.
+    fn read_rows_into(
+        &mut self,
+        row0: u64,
+        rows: u64,
+        out: &mut Vec<f32>,
+    ) -> Result<(), SourceError> {
+        *out = self.read_rows(row0, rows)?;
+        Ok(())
+    }
 }
 
 /// Opens a source from a path (the GeoTIFF opener, or a test double).
 pub type SourceOpener<'a> = dyn Fn(&Path) -> Result<Box<dyn RowSource>, SourceError> + 'a;
 
+/// Bytes of decoded rows after which a [`GeoTiffSource`] maps its file afresh.
+const REMAP_DECODED_BYTES: u64 = 64 << 20;
+
 /// A GeoTIFF read through the crate's streaming reader.
+///
+/// The reader memory-maps the file, and every page it has touched counts in
+/// the process's resident set until the map is dropped: streaming a 1 GB file
+/// top to bottom would end with 1 GB "resident" (clean page cache, but it is
+/// what RSS and the OOM accounting see). So the source opens the file again
+/// (a new map; tags only, a few milliseconds) after about
+/// [`REMAP_DECODED_BYTES`] of rows, at a block row boundary, where the reader
+/// keeps nothing worth reusing. The kernel's page cache still holds the data.
 pub struct GeoTiffSource {
     reader: GeoTiffReader,
     raster: SourceRaster,
+    block_height: u64,
+    /// Rows read since the file was last (re)opened.
+    rows_since_open: u64,
+    remap_rows: u64,
+}
+
+fn source_error(e: crate::geotiff::reader::GeoTiffError) -> SourceError {
+    SourceError {
+        message: e.to_string(),
+        bad_input: e.is_bad_input(),
+    }
 }
 
 impl GeoTiffSource {
     pub fn open(path: &Path) -> Result<GeoTiffSource, SourceError> {
-        let reader = GeoTiffReader::open(path).map_err(|e| SourceError {
-            message: e.to_string(),
-            bad_input: e.is_bad_input(),
-        })?;
+        let reader = GeoTiffReader::open(path).map_err(source_error)?;
         let info = reader.info();
+        let block_height = u64::from(info.block_height).max(1);
+        let row_bytes = (info.width * 4).max(1);
+        let remap_rows = (REMAP_DECODED_BYTES / row_bytes).max(block_height);
         let raster = SourceRaster {
             path: path.to_path_buf(),
             width: info.width,
@@ -65,7 +99,24 @@ impl GeoTiffSource {
             nodata: info.nodata,
             dtype: info.sample_type.gdal_name().to_string(),
         };
-        Ok(GeoTiffSource { reader, raster })
+        Ok(GeoTiffSource {
+            reader,
+            raster,
+            block_height,
+            rows_since_open: 0,
+            remap_rows,
+        })
+    }
+
+    /// Re-open (re-map) the file when enough rows were read since the last
+    /// open and `row0` starts a block row.
+    fn remap_if_due(&mut self, row0: u64) -> Result<(), SourceError> {
+        if self.rows_since_open >= self.remap_rows && row0 % self.block_height == 0 {
+            self.reader = GeoTiffReader::open(&self.raster.path).map_err(source_error)?;
+            self.rows_since_open = 0;
+            tracing::trace!(path = %self.raster.path.display(), row0, "geotiff remapped");
+        }
+        Ok(())
     }
 }
 
@@ -75,10 +126,23 @@ impl RowSource for GeoTiffSource {
     }
 
     fn read_rows(&mut self, row0: u64, rows: u64) -> Result<Vec<f32>, SourceError> {
-        self.reader.read_rows(row0, rows).map_err(|e| SourceError {
-            message: e.to_string(),
-            bad_input: e.is_bad_input(),
-        })
+        let mut out = Vec::new();
+        self.read_rows_into(row0, rows, &mut out)?;
+        Ok(out)
+    }
+
+    fn read_rows_into(
+        &mut self,
+        row0: u64,
+        rows: u64,
+        out: &mut Vec<f32>,
+    ) -> Result<(), SourceError> {
+        self.remap_if_due(row0)?;
+        self.reader
+            .read_rows_into(row0, rows, out)
+            .map_err(source_error)?;
+        self.rows_since_open += rows;
+        Ok(())
     }
 }
 
