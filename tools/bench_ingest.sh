@@ -33,11 +33,11 @@ fi
 # name -> command (the output store is appended as $OUT)
 declare -A CMD=(
   [dsmstream]="$BIN/dsmstream ingest $INPUT --store \$OUT -q"
-  [dsmstream_zstd1]="$BIN/dsmstream ingest $INPUT --store \$OUT -q --compression zstd:1"
+  [dsmstream_zstd3]="$BIN/dsmstream ingest $INPUT --store \$OUT -q --compression zstd:3"
   [gdal_default]="gdal_translate -q -of Zarr $INPUT \$OUT"
   [gdal_matched]="gdal_translate -q -of Zarr -co FORMAT=ZARR_V3 -co COMPRESS=ZSTD -co ZSTD_LEVEL=3 -co BLOCKSIZE=512,512 $INPUT \$OUT"
 )
-NAMES=(dsmstream dsmstream_zstd1 gdal_default gdal_matched)
+NAMES=(dsmstream dsmstream_zstd3 gdal_default gdal_matched)
 
 declare -A WALL CPU RSS BYTES
 for run in $(seq 1 "$RUNS"); do
