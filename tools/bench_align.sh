@@ -56,8 +56,9 @@ for spec in "$@"; do
     >"$log.align.out" 2>"$log.align.time"
   pairs=$(($(wc -l <"$out.journal") - 1))
   edges=$(grep -o '"edges"' "$out" >/dev/null && python3 -c "import json,sys; print(len(json.load(open(sys.argv[1]))['edges']))" "$out")
-  peak=$(sed -n 's/.*peak_mb="\{0,1\}\([0-9.]*\).*/\1/p' "$log.align.time" | tail -1)
-  hit=$(sed -n 's/.*hit_rate="\{0,1\}\([0-9.]*\).*/\1/p' "$log.align.time" | tail -1)
+  stats=$(sed 's/\x1b\[[0-9;]*m//g' "$log.align.time" | grep "cache stats reported" | tail -1)
+  peak=$(sed -n 's/.*peak_mb="\{0,1\}\([0-9.]*\).*/\1/p' <<<"$stats")
+  hit=$(sed -n 's/.*hit_rate="\{0,1\}\([0-9.]*\).*/\1/p' <<<"$stats")
   echo "| $name | $((rows * cols)) | ${size}² | $gen | $(wall "$log.ingest.time") / $(cpu "$log.ingest.time") | $(rss "$log.ingest.time") | $pairs ($edges) | $(wall "$log.align.time") / $(cpu "$log.align.time") | $(rss "$log.align.time") | $peak | $hit |"
   if [ "${KEEP:-0}" != 1 ]; then rm -rf "$store"; fi
 done
