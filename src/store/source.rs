@@ -65,12 +65,11 @@ const REMAP_DECODED_BYTES: u64 = 64 << 20;
 /// top to bottom would end with 1 GB "resident" (clean page cache, but it is
 /// what RSS and the OOM accounting see). So the source opens the file again
 /// (a new map; tags only, a few milliseconds) after about
-/// [`REMAP_DECODED_BYTES`] of rows, at a block row boundary, where the reader
-/// keeps nothing worth reusing. The kernel's page cache still holds the data.
+/// [`REMAP_DECODED_BYTES`] of rows; at worst the block row straddling the
+/// request boundary is decoded twice. The kernel's page cache keeps the data.
 pub struct GeoTiffSource {
     reader: GeoTiffReader,
     raster: SourceRaster,
-    block_height: u64,
     /// Rows read since the file was last (re)opened.
     rows_since_open: u64,
     remap_rows: u64,
@@ -87,9 +86,8 @@ impl GeoTiffSource {
     pub fn open(path: &Path) -> Result<GeoTiffSource, SourceError> {
         let reader = GeoTiffReader::open(path).map_err(source_error)?;
         let info = reader.info();
-        let block_height = u64::from(info.block_height).max(1);
         let row_bytes = (info.width * 4).max(1);
-        let remap_rows = (REMAP_DECODED_BYTES / row_bytes).max(block_height);
+        let remap_rows = (REMAP_DECODED_BYTES / row_bytes).max(1);
         let raster = SourceRaster {
             path: path.to_path_buf(),
             width: info.width,
@@ -102,16 +100,14 @@ impl GeoTiffSource {
         Ok(GeoTiffSource {
             reader,
             raster,
-            block_height,
             rows_since_open: 0,
             remap_rows,
         })
     }
 
-    /// Re-open (re-map) the file when enough rows were read since the last
-    /// open and `row0` starts a block row.
+    /// Re-open (re-map) the file when enough rows were read since the last open.
     fn remap_if_due(&mut self, row0: u64) -> Result<(), SourceError> {
-        if self.rows_since_open >= self.remap_rows && row0 % self.block_height == 0 {
+        if self.rows_since_open >= self.remap_rows {
             self.reader = GeoTiffReader::open(&self.raster.path).map_err(source_error)?;
             self.rows_since_open = 0;
             tracing::trace!(path = %self.raster.path.display(), row0, "geotiff remapped");
@@ -178,5 +174,45 @@ impl RowSource for MemSource {
             });
         }
         Ok(self.data[row0 as usize * w..end as usize * w].to_vec())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Reading through a source that re-maps its file every block row gives
+    /// the same rows as one reader, for strips and tiles and any band height.
+    #[test]
+    fn remapped_reads_equal_one_reader() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/geotiff");
+        for name in ["f32_strip_deflate.tif", "f32_tile_deflate.tif"] {
+            let path = dir.join(name);
+            let mut reader = GeoTiffReader::open(&path).unwrap();
+            let height = reader.info().height;
+            let whole = reader.read_rows(0, height).unwrap();
+            for band in [1, 5, 7, 16, 45] {
+                let mut source = GeoTiffSource::open(&path).unwrap();
+                source.remap_rows = 1;
+                let (mut row0, mut got, mut buf, mut remaps) = (0, Vec::new(), Vec::new(), 0);
+                while row0 < height {
+                    let rows = band.min(height - row0);
+                    let before = source.rows_since_open;
+                    source.read_rows_into(row0, rows, &mut buf).unwrap();
+                    remaps += usize::from(source.rows_since_open < before + rows);
+                    got.extend_from_slice(&buf);
+                    row0 += rows;
+                }
+                assert_eq!(got.len(), whole.len());
+                let same = got
+                    .iter()
+                    .zip(&whole)
+                    .all(|(a, b)| a.to_bits() == b.to_bits());
+                assert!(same, "{name}, bands of {band} rows");
+                if band < height {
+                    assert!(remaps > 0, "{name}, bands of {band} rows: not re-mapped");
+                }
+            }
+        }
     }
 }
