@@ -17,6 +17,9 @@ use std::sync::{Arc, Mutex};
 
 use lru::LruCache;
 
+mod data;
+pub use data::{ChunkData, MAP_MIN_BYTES};
+
 /// Identifies one chunk of one level of one DSM.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct ChunkKey {
@@ -32,7 +35,8 @@ pub struct ChunkKey {
 pub struct Chunk {
     pub width: usize,
     pub height: usize,
-    pub data: Vec<f32>,
+    /// Row-major samples (memory-mapped when large, see [`ChunkData`]).
+    pub data: ChunkData,
 }
 
 impl Chunk {
@@ -278,7 +282,8 @@ mod tests {
             height: side,
             data: (0..side * side)
                 .map(|k| i as f32 * 1000.0 + k as f32)
-                .collect(),
+                .collect::<Vec<f32>>()
+                .into(),
         }
     }
 
@@ -389,7 +394,7 @@ mod tests {
                                 Ok(Chunk {
                                     width: 8,
                                     height: 8,
-                                    data: vec![i as f32; 64],
+                                    data: vec![i as f32; 64].into(),
                                 })
                             })
                             .unwrap();

@@ -204,4 +204,3 @@ fn truth_gauge(poses: &PosesFile, truth: &Truth) -> PosesFile {
     }
     out
 }
-

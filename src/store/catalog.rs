@@ -54,12 +54,20 @@ pub enum Compression {
     Zstd { level: i32 },
 }
 
+/// zstd level of `--compression zstd` and of the default settings. Level 1:
+/// on float32 heights (noisy mantissa bytes) level 3 costs ~35 % more ingest
+/// CPU for 0.5 % smaller chunks on a 20000^2 generated DSM and 0-14 % on the
+/// real rasters of ../shared/data (tools/bench_results.md).
+pub const DEFAULT_ZSTD_LEVEL: i32 = 1;
+
 impl Compression {
-    /// "none" | "zstd" | "zstd:<level>".
+    /// "none" | "zstd" (level [`DEFAULT_ZSTD_LEVEL`]) | "zstd:<level>".
     pub fn parse(text: &str) -> Option<Compression> {
         match text {
             "none" => Some(Compression::None),
-            "zstd" => Some(Compression::Zstd { level: 3 }),
+            "zstd" => Some(Compression::Zstd {
+                level: DEFAULT_ZSTD_LEVEL,
+            }),
             _ => {
                 let level = text.strip_prefix("zstd:")?.parse().ok()?;
                 Some(Compression::Zstd { level })
@@ -82,7 +90,9 @@ impl Default for StorageSettings {
     fn default() -> Self {
         StorageSettings {
             chunk: 512,
-            compression: Compression::Zstd { level: 3 },
+            compression: Compression::Zstd {
+                level: DEFAULT_ZSTD_LEVEL,
+            },
             min_overview_px: 64,
         }
     }

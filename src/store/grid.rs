@@ -127,7 +127,7 @@ impl<'a> StoreGrid<'a> {
             Ok(Chunk {
                 width: side,
                 height: side,
-                data,
+                data: data.into(),
             })
         });
         loaded.unwrap_or_else(|message| {
@@ -141,7 +141,7 @@ impl<'a> StoreGrid<'a> {
             Arc::new(Chunk {
                 width: side,
                 height: side,
-                data: vec![f32::NAN; side * side],
+                data: vec![f32::NAN; side * side].into(),
             })
         })
     }

@@ -13,6 +13,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
+use crossbeam::channel::bounded;
 use zarrs::filesystem::FilesystemStore;
 
 use super::catalog::{self, DsmMeta, RootAttrs, StorageSettings, STORE_VERSION};
@@ -240,29 +241,8 @@ fn write_levels(
     let shapes = level_shapes(w, h, settings);
     let node = format!("/{}", tmp.file_name().unwrap_or_default().to_string_lossy());
     let mut pyramid = PyramidWriter::create(fs.clone(), &node, &shapes, settings)?;
-    let mut acc = HeightAccumulator::default();
     progress.dsm_started(&file.id, h);
-    let mut row0 = 0;
-    while row0 < h {
-        let rows = settings.chunk.min(h - row0);
-        let mut data = source.read_rows(row0, rows)?;
-        if data.len() as u64 != w * rows {
-            return Err(IngestError::Source(SourceError {
-                message: format!(
-                    "{}: read {} values for rows {row0}..{}, expected {}",
-                    file.path.display(),
-                    data.len(),
-                    row0 + rows,
-                    w * rows
-                ),
-                bad_input: false,
-            }));
-        }
-        acc.add_rows(&mut data, w as usize, row0);
-        pyramid.push_rows(&data)?;
-        progress.rows_done(rows);
-        row0 += rows;
-    }
+    let acc = stream_rows(source, settings.chunk, &mut pyramid, progress)?;
     pyramid.finish()?;
     let Some(height_stats) = acc.height_stats() else {
         return Err(IngestError::BadInput(format!(
@@ -287,4 +267,67 @@ fn write_levels(
     };
     catalog::write_group_attributes(tmp, &meta.to_attributes())?;
     Ok(meta)
+}
+
+/// Read the source a chunk row at a time on a reader thread (decode, then
+/// statistics) while this thread writes the previous chunk row into the
+/// pyramid, so the stages overlap. Two row buffers circulate between the
+/// threads: memory is two chunk rows of level 0 plus the pyramid's buffers.
+fn stream_rows(
+    source: &mut dyn RowSource,
+    chunk: u64,
+    pyramid: &mut PyramidWriter,
+    progress: &dyn IngestProgress,
+) -> Result<HeightAccumulator, IngestError> {
+    let (w, h) = (source.raster().width, source.raster().height);
+    let path = source.raster().path.clone();
+    let (full_tx, full_rx) = bounded::<(u64, Vec<f32>)>(1);
+    let (empty_tx, empty_rx) = bounded::<Vec<f32>>(2);
+    for _ in 0..2 {
+        empty_tx.send(Vec::new()).expect("the receiver is alive");
+    }
+    std::thread::scope(|scope| {
+        let reader = scope.spawn(move || -> Result<HeightAccumulator, IngestError> {
+            let mut acc = HeightAccumulator::default();
+            let mut row0 = 0;
+            while row0 < h {
+                let rows = chunk.min(h - row0);
+                let Ok(mut data) = empty_rx.recv() else {
+                    break; // the writer stopped (its error is reported)
+                };
+                source.read_rows_into(row0, rows, &mut data)?;
+                if data.len() as u64 != w * rows {
+                    return Err(IngestError::Source(SourceError {
+                        message: format!(
+                            "{}: read {} values for rows {row0}..{}, expected {}",
+                            path.display(),
+                            data.len(),
+                            row0 + rows,
+                            w * rows
+                        ),
+                        bad_input: false,
+                    }));
+                }
+                acc.add_rows(&mut data, w as usize, row0);
+                if full_tx.send((rows, data)).is_err() {
+                    break;
+                }
+                row0 += rows;
+            }
+            Ok(acc)
+        });
+        let mut written = Ok(());
+        for (rows, data) in full_rx.iter() {
+            written = pyramid.push_rows(&data);
+            if written.is_err() {
+                break;
+            }
+            progress.rows_done(rows);
+            let _ = empty_tx.send(data);
+        }
+        drop((full_rx, empty_tx));
+        let acc = reader.join().expect("the ingest reader thread panicked")?;
+        written?;
+        Ok(acc)
+    })
 }

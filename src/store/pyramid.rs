@@ -2,11 +2,13 @@
 //! overviews are built in a single top-to-bottom pass.
 //!
 //! Rows of level 0 arrive a block at a time. Each level buffers at most one
-//! chunk row of its own pixels; when the buffer is full it writes that chunk
-//! row (whole chunks, one rayon task per chunk: zarrs loses data when two
-//! partial writes hit one chunk) and hands the rows down, where they are
-//! averaged 2x2 (valid pixels only, NaN when none) into the next level. An odd
-//! row waits in `carry` for its partner. Memory: about one chunk row per level.
+//! chunk row of its own pixels; when a chunk row is complete it is written
+//! (whole chunks, one rayon task per chunk: zarrs loses data when two partial
+//! writes hit one chunk) and handed down at once, averaged 2x2 (valid pixels
+//! only, NaN when none) into the next level. An odd row waits in `carry` for
+//! its partner. A chunk row that arrives whole is written from the caller's
+//! slice without a copy. Memory: the caller's rows plus, per level below, one
+//! chunk row and one averaged input block (about 1.5x level 0's chunk row in all).
 
 use std::sync::Arc;
 
@@ -74,8 +76,11 @@ struct LevelWriter {
     width: usize,
     height: u64,
     chunk: usize,
-    /// Pending rows of this level (fewer than `chunk` rows between calls).
+    /// Pending rows of this level (fewer than `chunk` rows between calls;
+    /// stays empty when the rows arrive a whole chunk row at a time).
     buf: Vec<f32>,
+    /// Reused output of the 2x2 averaging into this level.
+    scratch: Vec<f32>,
     /// Chunk rows written so far.
     chunk_rows_written: u64,
     rows_written: u64,
@@ -84,77 +89,47 @@ struct LevelWriter {
 }
 
 impl LevelWriter {
-    fn buf_rows(&self) -> usize {
-        self.buf.len() / self.width
-    }
-
-    /// Append rows; returns the rows of every chunk row completed (and written).
-    fn append(&mut self, rows: &[f32]) -> Result<Vec<f32>, StoreError> {
-        let mut flushed = Vec::new();
-        let row_len = self.width;
-        let mut rest = rows;
-        while !rest.is_empty() {
-            let room = (self.chunk - self.buf_rows()) * row_len;
-            let take = room.min(rest.len());
-            self.buf.extend_from_slice(&rest[..take]);
-            rest = &rest[take..];
-            if self.buf_rows() == self.chunk {
-                self.write_buffer()?;
-                flushed.append(&mut self.buf);
-            }
-        }
-        Ok(flushed)
-    }
-
-    /// Write the last, partial chunk row; returns its rows.
-    fn flush_partial(&mut self) -> Result<Vec<f32>, StoreError> {
-        if self.buf.is_empty() {
-            return Ok(Vec::new());
-        }
-        self.write_buffer()?;
-        Ok(std::mem::take(&mut self.buf))
-    }
-
-    /// Write `buf` as chunk row `chunk_rows_written`, whole chunks in parallel.
-    fn write_buffer(&mut self) -> Result<(), StoreError> {
-        let rows = self.buf_rows();
+    /// Write `rows` (whole rows, at most `chunk` of them) as chunk row
+    /// `chunk_rows_written`, whole chunks in parallel.
+    fn write_rows(&mut self, rows: &[f32]) -> Result<(), StoreError> {
         let (w, c) = (self.width, self.chunk);
+        let n_rows = rows.len() / w;
         let cy = self.chunk_rows_written;
-        let buf = &self.buf;
         let array = &self.array;
+        let node = &self.node;
         (0..w.div_ceil(c)).into_par_iter().try_for_each(|cx| {
             let mut data = vec![f32::NAN; c * c];
             let col0 = cx * c;
             let cols = c.min(w - col0);
-            for r in 0..rows {
-                data[r * c..r * c + cols].copy_from_slice(&buf[r * w + col0..r * w + col0 + cols]);
+            for r in 0..n_rows {
+                data[r * c..r * c + cols].copy_from_slice(&rows[r * w + col0..r * w + col0 + cols]);
             }
             array
                 .store_chunk(&[cy, cx as u64], data)
-                .map_err(|e| StoreError::zarr(&self.node, format!("chunk ({cy}, {cx}): {e}")))
+                .map_err(|e| StoreError::zarr(node, format!("chunk ({cy}, {cx}): {e}")))
         })?;
         self.chunk_rows_written += 1;
-        self.rows_written += rows as u64;
+        self.rows_written += n_rows as u64;
         Ok(())
     }
 
     /// 2x2-average rows of the level above (width `2*width` or `2*width-1`)
-    /// into rows of this level, keeping an odd last row in `carry`.
-    fn downsample_input(&mut self, rows_above: &[f32], width_above: usize) -> Vec<f32> {
-        let mut out = Vec::with_capacity(rows_above.len() / 4 + self.width);
+    /// into `out` (cleared first), keeping an odd last row in `carry`.
+    fn downsample_input(&mut self, rows_above: &[f32], width_above: usize, out: &mut Vec<f32>) {
+        out.clear();
         let mut rows = rows_above.chunks_exact(width_above);
         if let Some(first) = self.carry.take() {
             match rows.next() {
-                Some(second) => downsample_rows(&first, Some(second), &mut out),
+                Some(second) => downsample_rows(&first, Some(second), out),
                 None => {
                     self.carry = Some(first);
-                    return out;
+                    return;
                 }
             }
         }
         loop {
             match (rows.next(), rows.next()) {
-                (Some(a), Some(b)) => downsample_rows(a, Some(b), &mut out),
+                (Some(a), Some(b)) => downsample_rows(a, Some(b), out),
                 (Some(a), None) => {
                     self.carry = Some(a.to_vec());
                     break;
@@ -162,8 +137,62 @@ impl LevelWriter {
                 _ => break,
             }
         }
-        out
     }
+}
+
+/// Feed whole rows into `levels[0]`: every completed chunk row is written and
+/// handed down (2x2-averaged) to the levels below before the next one is taken.
+/// A chunk row that arrives whole is written straight from `rows`, uncopied.
+fn push(levels: &mut [LevelWriter], rows: &[f32]) -> Result<(), StoreError> {
+    let Some((level, below)) = levels.split_first_mut() else {
+        return Ok(());
+    };
+    let width = level.width;
+    let chunk_len = level.chunk * width;
+    let mut rest = rows;
+    while !rest.is_empty() {
+        if level.buf.is_empty() && rest.len() >= chunk_len {
+            let (whole, tail) = rest.split_at(chunk_len);
+            level.write_rows(whole)?;
+            cascade(below, whole, width)?;
+            rest = tail;
+            continue;
+        }
+        let take = (chunk_len - level.buf.len()).min(rest.len());
+        level.buf.extend_from_slice(&rest[..take]);
+        rest = &rest[take..];
+        if level.buf.len() == chunk_len {
+            flush_buffer(level, below)?;
+        }
+    }
+    Ok(())
+}
+
+/// Write the buffered rows of `level` (a full or, at the end, partial chunk
+/// row) and hand them down.
+fn flush_buffer(level: &mut LevelWriter, below: &mut [LevelWriter]) -> Result<(), StoreError> {
+    if level.buf.is_empty() {
+        return Ok(());
+    }
+    let mut buf = std::mem::take(&mut level.buf);
+    let result = level
+        .write_rows(&buf)
+        .and_then(|()| cascade(below, &buf, level.width));
+    buf.clear();
+    level.buf = buf;
+    result
+}
+
+/// Average `rows` (of width `width_above`) into `below[0]` and push them on.
+fn cascade(below: &mut [LevelWriter], rows: &[f32], width_above: usize) -> Result<(), StoreError> {
+    let Some(next) = below.first_mut() else {
+        return Ok(());
+    };
+    let mut down = std::mem::take(&mut next.scratch);
+    next.downsample_input(rows, width_above, &mut down);
+    let result = push(below, &down);
+    below[0].scratch = down;
+    result
 }
 
 /// All levels of one DSM being written.
@@ -207,6 +236,7 @@ impl PyramidWriter {
                 height: shape.height,
                 chunk: settings.chunk as usize,
                 buf: Vec::new(),
+                scratch: Vec::new(),
                 chunk_rows_written: 0,
                 rows_written: 0,
                 carry: None,
@@ -215,35 +245,24 @@ impl PyramidWriter {
         Ok(PyramidWriter { levels })
     }
 
-    /// Feed rows of level 0, in order (any number of whole rows per call).
+    /// Feed rows of level 0, in order (any number of whole rows per call;
+    /// a whole chunk row per call avoids copying).
     pub fn push_rows(&mut self, rows: &[f32]) -> Result<(), StoreError> {
-        let flushed = self.levels[0].append(rows)?;
-        self.cascade(0, flushed)
-    }
-
-    /// Hand rows flushed from level `k` down the pyramid.
-    fn cascade(&mut self, mut k: usize, mut flushed: Vec<f32>) -> Result<(), StoreError> {
-        while !flushed.is_empty() && k + 1 < self.levels.len() {
-            let width_above = self.levels[k].width;
-            let down = self.levels[k + 1].downsample_input(&flushed, width_above);
-            flushed = self.levels[k + 1].append(&down)?;
-            k += 1;
-        }
-        Ok(())
+        push(&mut self.levels, rows)
     }
 
     /// Write the remaining partial chunk rows, top level first, and check that
     /// every level received exactly its height.
     pub fn finish(mut self) -> Result<(), StoreError> {
         for k in 0..self.levels.len() {
-            if let Some(row) = self.levels[k].carry.take() {
+            let from_k = &mut self.levels[k..];
+            if let Some(row) = from_k[0].carry.take() {
                 let mut out = Vec::new();
                 downsample_rows(&row, None, &mut out);
-                let flushed = self.levels[k].append(&out)?;
-                self.cascade(k, flushed)?;
+                push(from_k, &out)?;
             }
-            let flushed = self.levels[k].flush_partial()?;
-            self.cascade(k, flushed)?;
+            let (level, below) = from_k.split_first_mut().expect("k < len");
+            flush_buffer(level, below)?;
         }
         for level in &self.levels {
             if level.rows_written != level.height {

@@ -38,24 +38,56 @@ pub trait RowSource: Send {
     fn raster(&self) -> &SourceRaster;
     /// Rows `row0 .. row0 + rows`, row-major (`width * rows` values), NaN for no-data.
     fn read_rows(&mut self, row0: u64, rows: u64) -> Result<Vec<f32>, SourceError>;
+
+    /// As [`read_rows`](Self::read_rows), into `out` (replaced), so a caller
+    /// streaming a large raster can reuse one buffer.
+    fn read_rows_into(
+        &mut self,
+        row0: u64,
+        rows: u64,
+        out: &mut Vec<f32>,
+    ) -> Result<(), SourceError> {
+        *out = self.read_rows(row0, rows)?;
+        Ok(())
+    }
 }
 
 /// Opens a source from a path (the GeoTIFF opener, or a test double).
 pub type SourceOpener<'a> = dyn Fn(&Path) -> Result<Box<dyn RowSource>, SourceError> + 'a;
 
+/// Bytes of decoded rows after which a [`GeoTiffSource`] maps its file afresh.
+const REMAP_DECODED_BYTES: u64 = 64 << 20;
+
 /// A GeoTIFF read through the crate's streaming reader.
+///
+/// The reader memory-maps the file, and every page it has touched counts in
+/// the process's resident set until the map is dropped: streaming a 1 GB file
+/// top to bottom would end with 1 GB "resident" (clean page cache, but it is
+/// what RSS and the OOM accounting see). So the source opens the file again
+/// (a new map; tags only, a few milliseconds) after about
+/// [`REMAP_DECODED_BYTES`] of rows; at worst the block row straddling the
+/// request boundary is decoded twice. The kernel's page cache keeps the data.
 pub struct GeoTiffSource {
     reader: GeoTiffReader,
     raster: SourceRaster,
+    /// Rows read since the file was last (re)opened.
+    rows_since_open: u64,
+    remap_rows: u64,
+}
+
+fn source_error(e: crate::geotiff::reader::GeoTiffError) -> SourceError {
+    SourceError {
+        message: e.to_string(),
+        bad_input: e.is_bad_input(),
+    }
 }
 
 impl GeoTiffSource {
     pub fn open(path: &Path) -> Result<GeoTiffSource, SourceError> {
-        let reader = GeoTiffReader::open(path).map_err(|e| SourceError {
-            message: e.to_string(),
-            bad_input: e.is_bad_input(),
-        })?;
+        let reader = GeoTiffReader::open(path).map_err(source_error)?;
         let info = reader.info();
+        let row_bytes = (info.width * 4).max(1);
+        let remap_rows = (REMAP_DECODED_BYTES / row_bytes).max(1);
         let raster = SourceRaster {
             path: path.to_path_buf(),
             width: info.width,
@@ -65,7 +97,22 @@ impl GeoTiffSource {
             nodata: info.nodata,
             dtype: info.sample_type.gdal_name().to_string(),
         };
-        Ok(GeoTiffSource { reader, raster })
+        Ok(GeoTiffSource {
+            reader,
+            raster,
+            rows_since_open: 0,
+            remap_rows,
+        })
+    }
+
+    /// Re-open (re-map) the file when enough rows were read since the last open.
+    fn remap_if_due(&mut self, row0: u64) -> Result<(), SourceError> {
+        if self.rows_since_open >= self.remap_rows {
+            self.reader = GeoTiffReader::open(&self.raster.path).map_err(source_error)?;
+            self.rows_since_open = 0;
+            tracing::trace!(path = %self.raster.path.display(), row0, "geotiff remapped");
+        }
+        Ok(())
     }
 }
 
@@ -75,10 +122,23 @@ impl RowSource for GeoTiffSource {
     }
 
     fn read_rows(&mut self, row0: u64, rows: u64) -> Result<Vec<f32>, SourceError> {
-        self.reader.read_rows(row0, rows).map_err(|e| SourceError {
-            message: e.to_string(),
-            bad_input: e.is_bad_input(),
-        })
+        let mut out = Vec::new();
+        self.read_rows_into(row0, rows, &mut out)?;
+        Ok(out)
+    }
+
+    fn read_rows_into(
+        &mut self,
+        row0: u64,
+        rows: u64,
+        out: &mut Vec<f32>,
+    ) -> Result<(), SourceError> {
+        self.remap_if_due(row0)?;
+        self.reader
+            .read_rows_into(row0, rows, out)
+            .map_err(source_error)?;
+        self.rows_since_open += rows;
+        Ok(())
     }
 }
 
@@ -114,5 +174,45 @@ impl RowSource for MemSource {
             });
         }
         Ok(self.data[row0 as usize * w..end as usize * w].to_vec())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Reading through a source that re-maps its file every block row gives
+    /// the same rows as one reader, for strips and tiles and any band height.
+    #[test]
+    fn remapped_reads_equal_one_reader() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/geotiff");
+        for name in ["f32_strip_deflate.tif", "f32_tile_deflate.tif"] {
+            let path = dir.join(name);
+            let mut reader = GeoTiffReader::open(&path).unwrap();
+            let height = reader.info().height;
+            let whole = reader.read_rows(0, height).unwrap();
+            for band in [1, 5, 7, 16, 45] {
+                let mut source = GeoTiffSource::open(&path).unwrap();
+                source.remap_rows = 1;
+                let (mut row0, mut got, mut buf, mut remaps) = (0, Vec::new(), Vec::new(), 0);
+                while row0 < height {
+                    let rows = band.min(height - row0);
+                    let before = source.rows_since_open;
+                    source.read_rows_into(row0, rows, &mut buf).unwrap();
+                    remaps += usize::from(source.rows_since_open < before + rows);
+                    got.extend_from_slice(&buf);
+                    row0 += rows;
+                }
+                assert_eq!(got.len(), whole.len());
+                let same = got
+                    .iter()
+                    .zip(&whole)
+                    .all(|(a, b)| a.to_bits() == b.to_bits());
+                assert!(same, "{name}, bands of {band} rows");
+                if band < height {
+                    assert!(remaps > 0, "{name}, bands of {band} rows: not re-mapped");
+                }
+            }
+        }
     }
 }

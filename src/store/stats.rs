@@ -3,6 +3,8 @@
 //! variance does not suffer from E[x²]-E[x]² cancellation) and the pixel
 //! bounding box of the valid data (for the footprint).
 
+use rayon::prelude::*;
+
 use super::catalog::HeightStats;
 use crate::raster::GeoTransform;
 
@@ -34,47 +36,51 @@ impl HeightAccumulator {
     /// Replace non-finite values by the canonical NaN (so all-no-data chunks
     /// equal the fill value byte for byte) and add the rest to the statistics.
     /// `rows` holds whole rows of `width` pixels starting at `row0`.
+    ///
+    /// Bands of rows are summed in parallel around a shift `k` (the running
+    /// mean, or the block's first valid height), so the block variance
+    /// `Σ(x-k)² - (Σ(x-k))²/n` does not cancel however high the terrain; blocks
+    /// are then merged with Chan's formula.
     pub fn add_rows(&mut self, rows: &mut [f32], width: usize, row0: u64) {
-        let (mut n, mut sum) = (0u64, 0.0f64);
-        for (r, row) in rows.chunks_exact_mut(width).enumerate() {
-            let mut first: Option<usize> = None;
-            let mut last = 0usize;
-            for (c, v) in row.iter_mut().enumerate() {
-                if !v.is_finite() {
-                    *v = f32::NAN;
-                    continue;
-                }
-                let x = *v as f64;
-                n += 1;
-                sum += x;
-                self.min = self.min.min(x);
-                self.max = self.max.max(x);
-                first.get_or_insert(c);
-                last = c;
-            }
-            if let Some(first) = first {
-                let row = row0 + r as u64;
-                let b = self
-                    .bbox
-                    .get_or_insert([first as u64, row, last as u64, row]);
-                b[0] = b[0].min(first as u64);
-                b[2] = b[2].max(last as u64);
-                b[3] = row;
-            }
-        }
-        if n == 0 {
+        if width == 0 || rows.is_empty() {
             return;
         }
-        let block_mean = sum / n as f64;
-        let block_m2: f64 = rows
-            .iter()
-            .filter(|v| !v.is_nan())
-            .map(|&v| (v as f64 - block_mean).powi(2))
-            .sum();
-        let total = self.count + n;
+        let k = if self.count > 0 {
+            self.mean
+        } else {
+            match rows.iter().find(|v| v.is_finite()) {
+                Some(&v) => v as f64,
+                None => {
+                    rows.iter_mut().for_each(|v| *v = f32::NAN);
+                    return;
+                }
+            }
+        };
+        const BAND_ROWS: usize = 8;
+        let block = rows
+            .par_chunks_mut(width * BAND_ROWS)
+            .enumerate()
+            .map(|(b, band)| BlockSums::of_band(band, width, row0 + (b * BAND_ROWS) as u64, k))
+            .reduce(BlockSums::default, BlockSums::merge);
+        if block.n == 0 {
+            return;
+        }
+        self.min = self.min.min(block.min);
+        self.max = self.max.max(block.max);
+        if let Some([c0, r0, c1, r1]) = block.bbox {
+            let b = self.bbox.get_or_insert([c0, r0, c1, r1]);
+            b[0] = b[0].min(c0);
+            b[1] = b[1].min(r0);
+            b[2] = b[2].max(c1);
+            b[3] = b[3].max(r1);
+        }
+        let n = block.n as f64;
+        let block_mean = k + block.s1 / n;
+        let block_m2 = (block.s2 - block.s1 * block.s1 / n).max(0.0);
+        let total = self.count + block.n;
         let delta = block_mean - self.mean;
-        self.mean += delta * n as f64 / total as f64;
-        self.m2 += block_m2 + delta * delta * (self.count as f64 * n as f64) / total as f64;
+        self.mean += delta * n / total as f64;
+        self.m2 += block_m2 + delta * delta * (self.count as f64 * n) / total as f64;
         self.count = total;
     }
 
@@ -106,6 +112,93 @@ impl HeightAccumulator {
     }
 }
 
+/// Sums of one block (or band) of rows around a shift `k`.
+#[derive(Clone, Copy, Debug)]
+struct BlockSums {
+    n: u64,
+    /// Σ (x - k) and Σ (x - k)² over the valid pixels.
+    s1: f64,
+    s2: f64,
+    min: f64,
+    max: f64,
+    bbox: Option<[u64; 4]>,
+}
+
+impl Default for BlockSums {
+    fn default() -> Self {
+        BlockSums {
+            n: 0,
+            s1: 0.0,
+            s2: 0.0,
+            min: f64::INFINITY,
+            max: f64::NEG_INFINITY,
+            bbox: None,
+        }
+    }
+}
+
+impl BlockSums {
+    /// Canonicalise the non-finite values of `band` (whole rows from `row0`) and sum the rest.
+    fn of_band(band: &mut [f32], width: usize, row0: u64, k: f64) -> BlockSums {
+        let mut s = BlockSums::default();
+        for (r, row) in band.chunks_exact_mut(width).enumerate() {
+            let (mut n, mut s1, mut s2) = (0u64, 0.0f64, 0.0f64);
+            let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+            for v in row.iter_mut() {
+                if v.is_finite() {
+                    let d = *v as f64 - k;
+                    n += 1;
+                    s1 += d;
+                    s2 += d * d;
+                    lo = lo.min(*v);
+                    hi = hi.max(*v);
+                } else {
+                    *v = f32::NAN;
+                }
+            }
+            if n == 0 {
+                continue;
+            }
+            let first = row.iter().position(|v| !v.is_nan()).unwrap_or(0) as u64;
+            let last = row.iter().rposition(|v| !v.is_nan()).unwrap_or(0) as u64;
+            let y = row0 + r as u64;
+            s = BlockSums::merge(
+                s,
+                BlockSums {
+                    n,
+                    s1,
+                    s2,
+                    min: lo as f64,
+                    max: hi as f64,
+                    bbox: Some([first, y, last, y]),
+                },
+            );
+        }
+        s
+    }
+
+    fn merge(a: BlockSums, b: BlockSums) -> BlockSums {
+        let bbox = match (a.bbox, b.bbox) {
+            (Some(x), Some(y)) => Some([
+                x[0].min(y[0]),
+                x[1].min(y[1]),
+                x[2].max(y[2]),
+                x[3].max(y[3]),
+            ]),
+            (x, None) => x,
+            (None, y) => y,
+        };
+        BlockSums {
+            n: a.n + b.n,
+            s1: a.s1 + b.s1,
+            s2: a.s2 + b.s2,
+            min: a.min.min(b.min),
+            max: a.max.max(b.max),
+            bbox,
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -129,6 +222,51 @@ mod tests {
         let gt = GeoTransform::north_up(100.0, 200.0, 2.0, 2.0);
         // valid cols 0..=2, rows 0..=3
         assert_eq!(acc.footprint(&gt, 3, 4), [100.0, 192.0, 106.0, 200.0]);
+    }
+
+    #[test]
+    fn high_terrain_keeps_its_small_variance_over_many_blocks() {
+        // 3000 m terrain with centimetre variation: E[x²]-E[x]² would cancel.
+        let width = 37;
+        let mut all = Vec::new();
+        let mut acc = HeightAccumulator::default();
+        let mut seed = 7u64;
+        for block in 0..20u64 {
+            let mut rows: Vec<f32> = (0..width * 11)
+                .map(|i| {
+                    seed = seed
+                        .wrapping_mul(6364136223846793005)
+                        .wrapping_add(1442695040888963407);
+                    if i % 13 == 5 {
+                        f32::NEG_INFINITY
+                    } else {
+                        3000.0 + ((seed >> 40) as f32 / (1u64 << 24) as f32) * 0.05
+                    }
+                })
+                .collect();
+            all.extend(
+                rows.iter()
+                    .copied()
+                    .filter(|v| v.is_finite())
+                    .map(f64::from),
+            );
+            acc.add_rows(&mut rows, width, block * 11);
+            assert!(rows
+                .iter()
+                .all(|v| v.is_finite() || v.to_bits() == f32::NAN.to_bits()));
+        }
+        let n = all.len() as f64;
+        let mean = all.iter().sum::<f64>() / n;
+        let std = (all.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n).sqrt();
+        let s = acc.height_stats().unwrap();
+        assert_eq!(acc.valid_count(), all.len() as u64);
+        assert!((s.mean - mean).abs() < 1e-9, "{} vs {mean}", s.mean);
+        assert!(
+            (s.std - std).abs() < 1e-9 * std.max(1.0),
+            "{} vs {std}",
+            s.std
+        );
+        assert!(std > 0.01, "the data vary");
     }
 
     #[test]
