@@ -21,7 +21,7 @@ pub struct Args {
     /// Square chunk side in pixels.
     #[arg(long, default_value_t = 512)]
     pub chunk: u64,
-    /// Chunk compression: zstd (level 3), zstd:<level>, or none.
+    /// Chunk compression: zstd (level 1), zstd:<level>, or none.
     #[arg(long, default_value = "zstd", value_parser = parse_compression)]
     pub compression: Compression,
     /// Re-ingest DSMs even when their source is unchanged.
