@@ -16,6 +16,7 @@ use crate::grid::Grid;
 pub const OVERLAP_LEVEL_PX: u64 = 512;
 
 /// One DSM as the planner sees it.
+/// Also the entry of every footprint R-tree (plan, fuse, eval).
 #[derive(Clone, Debug)]
 pub struct Footprint {
     pub index: usize,
@@ -23,12 +24,7 @@ pub struct Footprint {
     pub bounds: [f64; 4],
 }
 
-struct Entry {
-    index: usize,
-    bounds: [f64; 4],
-}
-
-impl RTreeObject for Entry {
+impl RTreeObject for Footprint {
     type Envelope = AABB<[f64; 2]>;
     fn envelope(&self) -> Self::Envelope {
         AABB::from_corners(
@@ -50,15 +46,7 @@ pub struct PlannedPair {
 /// Candidate pairs whose footprints intersect with positive area, as (i, j), i < j,
 /// in Morton order of the DSM centres.
 pub fn candidate_pairs(footprints: &[Footprint]) -> Vec<(usize, usize)> {
-    let tree = RTree::bulk_load(
-        footprints
-            .iter()
-            .map(|f| Entry {
-                index: f.index,
-                bounds: f.bounds,
-            })
-            .collect(),
-    );
+    let tree = RTree::bulk_load(footprints.to_vec());
     let rank = morton_ranks(footprints);
     let mut pairs = Vec::new();
     for f in footprints {

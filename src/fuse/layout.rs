@@ -3,9 +3,10 @@
 //! corrected footprints, snapped to the lattice of the finest DSM so an identity
 //! pose reads input pixels without interpolation).
 
-use rstar::{RTree, RTreeObject, AABB};
+use rstar::{RTree, AABB};
 
 use super::corrected::PoseXf;
+use crate::plan::Footprint;
 use crate::raster::GeoTransform;
 use crate::store::{DsmMeta, Store};
 
@@ -103,24 +104,9 @@ pub fn finest_lattice(store: &Store, dsms: &[usize]) -> Option<(f64, (f64, f64))
         .map(|m| (m.gsd_m(), (m.geotransform.0[0], m.geotransform.0[3])))
 }
 
-struct Entry {
-    slot: usize,
-    bounds: [f64; 4],
-}
-
-impl RTreeObject for Entry {
-    type Envelope = AABB<[f64; 2]>;
-    fn envelope(&self) -> Self::Envelope {
-        AABB::from_corners(
-            [self.bounds[0], self.bounds[1]],
-            [self.bounds[2], self.bounds[3]],
-        )
-    }
-}
-
 /// R-tree of corrected footprints: which DSMs touch a box or a point.
 pub struct FootprintIndex {
-    tree: RTree<Entry>,
+    tree: RTree<Footprint>,
 }
 
 impl FootprintIndex {
@@ -131,8 +117,8 @@ impl FootprintIndex {
                 placed
                     .iter()
                     .enumerate()
-                    .map(|(slot, p)| Entry {
-                        slot,
+                    .map(|(slot, p)| Footprint {
+                        index: slot,
                         bounds: p.corrected_bounds,
                     })
                     .collect(),
@@ -146,7 +132,7 @@ impl FootprintIndex {
         let mut out: Vec<usize> = self
             .tree
             .locate_in_envelope_intersecting(env)
-            .map(|e| e.slot)
+            .map(|e| e.index)
             .collect();
         out.sort_unstable();
         out
@@ -159,7 +145,7 @@ impl FootprintIndex {
         out.extend(
             self.tree
                 .locate_in_envelope_intersecting(env)
-                .map(|e| e.slot),
+                .map(|e| e.index),
         );
         out.sort_unstable();
     }
