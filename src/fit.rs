@@ -52,6 +52,20 @@ pub struct FitUpdate {
     pub constraint_ratio: f64,
     /// Smallest eigenvalue's direction in (rx, ry, rz, tx, ty, tz) order.
     pub weakest_direction: [f64; 6],
+    /// Standard errors of this step's estimate (see [`FitSigma`]).
+    pub sigma: FitSigma,
+}
+
+/// One-sigma standard errors of a point-to-plane fit, from the sandwich
+/// covariance H^-1 (sum w^2 r^2 a a^T) H^-1 of the weighted least squares: the
+/// spread the estimate would have over other noise draws, if the residuals of
+/// different correspondences are independent. Rotations about the local x, y
+/// (tilt) and z (yaw) axes; translations at the weighted centroid of the moving
+/// points. Zero where the model does not estimate that parameter.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct FitSigma {
+    pub rot_deg: [f64; 3],
+    pub trans_m: [f64; 3],
 }
 
 /// One linearised point-to-plane step. None when there are too few
@@ -76,6 +90,7 @@ pub fn point_to_plane(corrs: &[Correspondence], model: Model) -> Option<FitUpdat
         .max(1e-6);
     let mut h = Matrix6::<f64>::zeros();
     let mut g = Vector6::<f64>::zeros();
+    let mut meat = Matrix6::<f64>::zeros();
     for c in corrs {
         let q = c.moving - centroid;
         let a_rot = q.cross(&c.normal) / radius;
@@ -83,8 +98,10 @@ pub fn point_to_plane(corrs: &[Correspondence], model: Model) -> Option<FitUpdat
             a_rot.x, a_rot.y, a_rot.z, c.normal.x, c.normal.y, c.normal.z,
         );
         let r = c.plane_residual_m();
-        h += c.weight * a * a.transpose();
+        let aat = a * a.transpose();
+        h += c.weight * aat;
         g += c.weight * r * a;
+        meat += (c.weight * r).powi(2) * aat;
     }
     let (x, ratio, weakest) = match model {
         Model::Rigid => solve_spd(&h, &g)?,
@@ -99,6 +116,7 @@ pub fn point_to_plane(corrs: &[Correspondence], model: Model) -> Option<FitUpdat
             )
         }
     };
+    let sigma = sandwich_sigma(&h, &meat, model, radius);
     let omega = Vector3::new(x[0], x[1], x[2]) / radius;
     let t = Vector3::new(x[3], x[4], x[5]);
     let rotation = UnitQuaternion::from_scaled_axis(omega);
@@ -108,7 +126,32 @@ pub fn point_to_plane(corrs: &[Correspondence], model: Model) -> Option<FitUpdat
         update: Isometry3::from_parts(Translation3::from(translation), rotation),
         constraint_ratio: ratio,
         weakest_direction: weakest,
+        sigma,
     })
+}
+
+/// Standard errors from the sandwich covariance (see [`FitSigma`]); the
+/// rotation block is unscaled by `radius_m` back to radians.
+fn sandwich_sigma(h: &Matrix6<f64>, meat: &Matrix6<f64>, model: Model, radius_m: f64) -> FitSigma {
+    let (lo, n) = match model {
+        Model::Rigid => (0, 6),
+        Model::Translation => (3, 3),
+    };
+    let hs = h.view((lo, lo), (n, n)).into_owned();
+    let ms = meat.view((lo, lo), (n, n)).into_owned();
+    let Some(inv) = hs.try_inverse() else {
+        return FitSigma::default();
+    };
+    let cov = &inv * ms * &inv;
+    let mut sigma = FitSigma::default();
+    for k in 0..n {
+        let sd = cov[(k, k)].max(0.0).sqrt();
+        match lo + k {
+            i @ 0..=2 => sigma.rot_deg[i] = (sd / radius_m).to_degrees(),
+            i => sigma.trans_m[i - 3] = sd,
+        }
+    }
+    sigma
 }
 
 /// Solves H x = -g for a 6x6 symmetric positive semi-definite H.
@@ -267,6 +310,62 @@ mod tests {
         let err = estimate.inverse() * t;
         assert!(err.translation.vector.norm() < 1e-8, "{err:?}");
         assert!(err.rotation.angle() < 1e-10);
+    }
+
+    /// The reported sigma matches the spread of the estimate over noise draws.
+    #[test]
+    fn sigma_matches_the_spread_over_noise_draws() {
+        let pts = wavy_surface(30);
+        let mut rng = crate::rng::SplitMix64::new(7);
+        let draws: Vec<(Vector6<f64>, FitSigma)> = (0..200)
+            .map(|_| {
+                let corrs: Vec<_> = pts
+                    .iter()
+                    .map(|(p, n)| Correspondence {
+                        moving: p + Vector3::z() * 0.3 * rng.normal(),
+                        reference: *p,
+                        normal: *n,
+                        weight: 1.0,
+                    })
+                    .collect();
+                let fit = point_to_plane(&corrs, Model::Rigid).unwrap();
+                let (r, t) = (
+                    fit.update.rotation.scaled_axis(),
+                    fit.update.translation.vector,
+                );
+                (
+                    Vector6::new(
+                        r.x.to_degrees(),
+                        r.y.to_degrees(),
+                        r.z.to_degrees(),
+                        t.x,
+                        t.y,
+                        t.z,
+                    ),
+                    fit.sigma,
+                )
+            })
+            .collect();
+        let n = draws.len() as f64;
+        for k in 0..6 {
+            let mean = draws.iter().map(|d| d.0[k]).sum::<f64>() / n;
+            let spread = (draws.iter().map(|d| (d.0[k] - mean).powi(2)).sum::<f64>() / n).sqrt();
+            let reported = draws
+                .iter()
+                .map(|d| {
+                    if k < 3 {
+                        d.1.rot_deg[k]
+                    } else {
+                        d.1.trans_m[k - 3]
+                    }
+                })
+                .sum::<f64>()
+                / n;
+            assert!(
+                reported > 0.7 * spread && reported < 1.4 * spread,
+                "parameter {k}: reported {reported}, spread {spread}"
+            );
+        }
     }
 
     #[test]

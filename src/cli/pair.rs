@@ -188,6 +188,11 @@ fn print_table(reference: &str, moving: &str, r: &IcpResult, seconds: f64) {
         "rotation    {angle_deg:.6} deg   constraint ratio {:.2e}",
         r.constraint_ratio
     );
+    let (sr, st) = (r.sigma.rot_deg, r.sigma.trans_m);
+    println!(
+        "1-sigma     tilt {:.5} {:.5} deg  yaw {:.5} deg  shift {:.4} {:.4} {:.4} m",
+        sr[0], sr[1], sr[2], st[0], st[1], st[2]
+    );
     println!("matrix_world (p_ref = M p_moving):");
     for row in m {
         println!(

@@ -14,7 +14,7 @@ pub mod sample;
 use nalgebra::{Isometry3, Matrix4, Translation3, Vector3};
 use serde::Serialize;
 
-use crate::fit::{point_to_plane, point_to_point, Correspondence, Model};
+use crate::fit::{point_to_plane, point_to_point, Correspondence, FitSigma, Model};
 use crate::grid::{Grid, Pyramid};
 use crate::nn::{NnStats, PixelFrame};
 use associate::{associate, block_order, Association};
@@ -106,6 +106,10 @@ pub struct IcpResult {
     pub status: IcpStatus,
     /// Smallest/largest eigenvalue of the normalised fit matrix (near 0 = degenerate).
     pub constraint_ratio: f64,
+    /// Standard errors of the transform from the last fit (point-to-plane
+    /// metrics; zero for point-to-point), in the local frame at the overlap.
+    #[serde(default)]
+    pub sigma: FitSigma,
     pub nn: NnStatsSummary,
 }
 
@@ -207,6 +211,7 @@ pub fn register<R: Pyramid, M: Pyramid>(
         iterations: outcome.iterations,
         status: outcome.status,
         constraint_ratio: outcome.constraint_ratio,
+        sigma: outcome.sigma,
         nn: NnStatsSummary {
             queries: outcome.nn.queries,
             pixels_visited: outcome.nn.pixels_visited,
@@ -219,6 +224,7 @@ struct LevelOutcome {
     status: IcpStatus,
     iterations: usize,
     constraint_ratio: f64,
+    sigma: FitSigma,
     final_association: Association,
     nn: NnStats,
 }
@@ -272,6 +278,7 @@ fn run_level<R: Pyramid, M: Pyramid>(
     let mut nn = NnStats::default();
     let mut status = IcpStatus::MaxIterations;
     let mut constraint_ratio = 1.0;
+    let mut sigma = FitSigma::default();
     let mut iterations = 0;
     let min_inliers = 30.max(samples.points.len() / 100);
     for _ in 0..config.max_iter {
@@ -299,7 +306,10 @@ fn run_level<R: Pyramid, M: Pyramid>(
         let (update, ratio) = match config.metric {
             Metric::PointToPlane | Metric::PointToSurface => {
                 match point_to_plane(&corrs, config.model) {
-                    Some(f) => (f.update, f.constraint_ratio),
+                    Some(f) => {
+                        sigma = f.sigma;
+                        (f.update, f.constraint_ratio)
+                    }
                     None => (Isometry3::identity(), 0.0),
                 }
             }
@@ -352,6 +362,7 @@ fn run_level<R: Pyramid, M: Pyramid>(
         status,
         iterations,
         constraint_ratio,
+        sigma,
         final_association,
         nn,
     })

@@ -40,16 +40,29 @@ pub fn sample_overlap<G: Grid + ?Sized>(
     let Some([col0, row0, col1, row1]) = pixel_window(grid, world_box) else {
         return Samples::default();
     };
+    // Strata of a fractional edge, so the count is close to `count` (an
+    // integer edge would round 2.2 px up to 3 and halve the samples).
     let area = ((col1 - col0) * (row1 - row0)) as f64;
-    let cell = ((area / count.max(1) as f64).sqrt().ceil() as i64).max(1);
+    let cell_px = (area / count.max(1) as f64).sqrt().max(1.0);
+    let edges = |start: i64, end: i64| -> Vec<i64> {
+        let n = (((end - start) as f64 / cell_px).ceil() as i64).max(1);
+        (0..=n)
+            .map(|i| start + ((i as f64 * cell_px).round() as i64).min(end - start))
+            .collect::<Vec<_>>()
+    };
+    let (col_edges, row_edges) = (edges(col0, col1), edges(row0, row1));
     let mut rng = SplitMix64::new(seed);
     let mut samples = Samples::default();
-    let mut row = row0;
-    while row < row1 {
-        let cell_h = cell.min(row1 - row);
-        let mut col = col0;
-        while col < col1 {
-            let cell_w = cell.min(col1 - col);
+    for rows in row_edges.windows(2) {
+        let (row, cell_h) = (rows[0], rows[1] - rows[0]);
+        if cell_h <= 0 {
+            continue;
+        }
+        for cols in col_edges.windows(2) {
+            let (col, cell_w) = (cols[0], cols[1] - cols[0]);
+            if cell_w <= 0 {
+                continue;
+            }
             samples.cells += 1;
             for _attempt in 0..4 {
                 let c = col + rng.below(cell_w as u64) as i64;
@@ -60,9 +73,7 @@ pub fn sample_overlap<G: Grid + ?Sized>(
                     break;
                 }
             }
-            col += cell;
         }
-        row += cell;
     }
     samples
 }
