@@ -9,7 +9,9 @@ use nalgebra::{Matrix4, Vector3};
 
 use crate::averaging::{average, edge_residuals, fix_gauge, AveragingOptions, Gauge};
 use crate::cache::ChunkCache;
-use crate::graph::{chain_poses, mst, paper_weights, Edge, PoseGraph};
+use crate::graph::{
+    chain_poses, information_weights, mst, paper_weights, Edge, EdgeSigma, PoseGraph, Weighting,
+};
 use crate::journal::{EdgeRecord, Journal, JournalError};
 use crate::pipeline::{self, PairTask, PipelineConfig};
 use crate::plan::{candidate_pairs, Footprint};
@@ -22,6 +24,8 @@ use crate::store::Store;
 pub struct AlignConfig {
     pub pipeline: PipelineConfig,
     pub graph: GraphKind,
+    /// Edge weights of the averaging (`--weights`).
+    pub weights: Weighting,
     /// Id of the DSM that stays fixed; None = mean gauge.
     pub anchor: Option<String>,
     pub resume: bool,
@@ -44,6 +48,9 @@ pub struct AlignOutcome {
     pub poses: PosesFile,
     pub records: Vec<EdgeRecord>,
     pub components: Vec<Vec<String>>,
+    /// The weights used: `config.weights`, or the paper's when some edge has no
+    /// standard errors (journaled by an older version, or the point-to-point metric).
+    pub weights: Weighting,
 }
 
 pub fn align(
@@ -137,29 +144,36 @@ pub fn align(
     }
     let origin = local_origin(store);
     let mut graph = PoseGraph::new(dsms.len());
-    for r in &usable {
-        let m = r.m_world.expect("usable edges have a matrix");
-        let m_world = Matrix4::from_fn(|a, b| m[a][b]);
-        graph.edges.push(Edge {
-            i: store.find(&r.reference).expect("id from the store"),
-            j: store.find(&r.moving).expect("id from the store"),
-            m_ij: to_local(&m_world, &origin),
-            overlap: r.overlap,
-            rmse_m: r.rmse_m,
-            weight: 0.0,
-        });
-    }
-    paper_weights(&mut graph.edges);
+    graph.edges = usable.iter().map(|r| edge(store, r, &origin)).collect();
+    let weights = match config.weights {
+        Weighting::Information => match information_weights(&mut graph.edges) {
+            Ok(()) => Weighting::Information,
+            Err(e) => {
+                tracing::warn!(error = %e, "information weights unavailable, paper weights used");
+                paper_weights(&mut graph.edges);
+                Weighting::Paper
+            }
+        },
+        Weighting::Paper => {
+            paper_weights(&mut graph.edges);
+            Weighting::Paper
+        }
+    };
     let gauge = anchor.map_or(Gauge::Mean, Gauge::Anchor);
     let options = AveragingOptions {
         gauge,
+        // Residuals in sigmas only with the weights that trust the sigmas.
+        outlier_by_sigma: weights == Weighting::Information,
         ..AveragingOptions::default()
     };
     let (poses_local, residuals, dropped, components, summary) = match config.graph {
         GraphKind::Full => {
             let result =
                 average(&graph, &options).map_err(|e| AlignError::Averaging(e.to_string()))?;
-            let summary = PosesSummary::from_result(&result);
+            let summary = PosesSummary {
+                weights: Some(weights),
+                ..PosesSummary::from_result(&result)
+            };
             (
                 result.poses,
                 result.edge_residuals,
@@ -199,6 +213,7 @@ pub fn align(
             overlap: e.overlap,
             rmse_m: e.rmse_m,
             weight: e.weight,
+            translation_weight: Some(e.translation_weight),
             iterations: r.iterations as u32,
             inliers: r.inliers as u64,
             residual_m: residuals[k].translation_m,
@@ -224,7 +239,35 @@ pub fn align(
         poses,
         records,
         components: component_ids,
+        weights,
     })
+}
+
+/// The graph edge of a registered pair, in the local frame: M_ij, its standard
+/// errors, and the centre of the two footprints' intersection at the mean height
+/// as the point where its translation was measured.
+fn edge(store: &Store, r: &EdgeRecord, origin: &Vector3<f64>) -> Edge {
+    let m = r.m_world.expect("usable edges have a matrix");
+    let m_world = Matrix4::from_fn(|a, b| m[a][b]);
+    let (i, j) = (
+        store.find(&r.reference).expect("id from the store"),
+        store.find(&r.moving).expect("id from the store"),
+    );
+    let (a, b) = (&store.dsms()[i], &store.dsms()[j]);
+    let (fa, fb) = (a.footprint, b.footprint);
+    let centre_world = Vector3::new(
+        (fa[0].max(fb[0]) + fa[2].min(fb[2])) / 2.0,
+        (fa[1].max(fb[1]) + fa[3].min(fb[3])) / 2.0,
+        (a.height_stats.mean + b.height_stats.mean) / 2.0,
+    );
+    Edge {
+        sigma: r.sigma.map(|s| EdgeSigma {
+            rotation_rad: Vector3::from(s.rot_deg).map(f64::to_radians),
+            translation_m: Vector3::from(s.trans_m),
+        }),
+        centre_j: centre_world - origin,
+        ..Edge::new(i, j, to_local(&m_world, origin), r.overlap, r.rmse_m)
+    }
 }
 
 /// Centre of all footprints at the mean height: edges and poses are solved

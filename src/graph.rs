@@ -1,14 +1,20 @@
 //! The scene graph: DSMs are nodes, overlapping pairs registered by DSM-ICP are edges
 //! carrying the relative pose M_ij = M_i^-1 M_j (R_ij = R_i^T R_j,
-//! t_ij = R_i^T (t_j - t_i)), the overlap score and the final ICP RMSE. Also the
-//! paper's edge weights, connected components (union-find), and the greedy
-//! baseline: Kruskal maximum-overlap spanning tree with poses chained from a root.
+//! t_ij = R_i^T (t_j - t_i)), the overlap score, the final ICP RMSE and, when the
+//! registration reports them, the standard errors of M_ij. Also the edge weights
+//! (the paper's, or inverse variances: [`weights`]), connected components
+//! (union-find), and the greedy baseline: Kruskal maximum-overlap spanning tree with
+//! poses chained from a root.
 //!
 //! The ICP of pair (i, j) (reference i, moving j) returns T_ij mapping points of j
 //! into i's frame; with poses p_corr = M_k p this is M_i T_ij = M_j, so T_ij = M_ij.
 
+mod weights;
+
+pub use weights::{information_weights, paper_weights, Weighting};
+
 use crate::poses::rigid::inverse_rigid;
-use nalgebra::Matrix4;
+use nalgebra::{Matrix4, Vector3};
 use std::collections::VecDeque;
 
 /// One registered pair.
@@ -22,8 +28,43 @@ pub struct Edge {
     pub overlap: f64,
     /// RMSE of the final ICP iteration, metres.
     pub rmse_m: f64,
-    /// Weight in the averaging (see [`paper_weights`]); 0 means "ignore this edge".
+    /// Weight of the rotation in the averaging (see [`weights`]); 0 means "ignore
+    /// this edge" (rotation and translation).
     pub weight: f64,
+    /// Weight of the translation in the averaging (used while `weight` > 0).
+    pub translation_weight: f64,
+    /// One-sigma standard errors of M_ij, if the registration reported them.
+    pub sigma: Option<EdgeSigma>,
+    /// Where the translation of M_ij was measured: a point of j's frame (the overlap
+    /// centre, in the frame of the edges). Translation constraints and residuals are
+    /// taken there, so a pair's rotation error does not leak into its translation
+    /// through the lever arm to the origin.
+    pub centre_j: Vector3<f64>,
+}
+
+/// One-sigma standard errors of a relative pose, per axis of the edges' frame:
+/// rotations about x, y, z (radians) and the translation at `Edge::centre_j`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EdgeSigma {
+    pub rotation_rad: Vector3<f64>,
+    pub translation_m: Vector3<f64>,
+}
+
+impl Edge {
+    /// An edge with unit weights, no standard errors, measured at the origin.
+    pub fn new(i: usize, j: usize, m_ij: Matrix4<f64>, overlap: f64, rmse_m: f64) -> Self {
+        Edge {
+            i,
+            j,
+            m_ij,
+            overlap,
+            rmse_m,
+            weight: 1.0,
+            translation_weight: 1.0,
+            sigma: None,
+            centre_j: Vector3::zeros(),
+        }
+    }
 }
 
 /// Nodes 0..n and the registered pairs between them.
@@ -45,6 +86,10 @@ pub enum GraphError {
     NegativeWeight { edge: usize, weight: f64 },
     #[error("root node {root} out of range (graph has {n} nodes)")]
     RootOutOfRange { root: usize, n: usize },
+    #[error("edge {edge}: translation weight 0 on an edge with a rotation weight")]
+    ZeroTranslationWeight { edge: usize },
+    #[error("edge {edge}: no standard errors (journaled before they were reported, or the point-to-point metric)")]
+    MissingSigma { edge: usize },
     #[error("graph has {n} nodes; at most {max} are supported")]
     TooLarge { n: usize, max: usize },
 }
@@ -78,20 +123,27 @@ impl PoseGraph {
             if e.i == e.j {
                 return Err(GraphError::SelfLoop { edge: k, node: e.i });
             }
+            let sigma_finite = e.sigma.is_none_or(|s| {
+                s.rotation_rad.iter().all(|v| v.is_finite())
+                    && s.translation_m.iter().all(|v| v.is_finite())
+            });
             let checks = [
                 ("m_ij", e.m_ij.iter().all(|v| v.is_finite())),
                 ("overlap", e.overlap.is_finite()),
                 ("rmse_m", e.rmse_m.is_finite()),
                 ("weight", e.weight.is_finite()),
+                ("translation_weight", e.translation_weight.is_finite()),
+                ("sigma", sigma_finite),
+                ("centre_j", e.centre_j.iter().all(|v| v.is_finite())),
             ];
             if let Some((what, _)) = checks.iter().find(|(_, ok)| !ok) {
                 return Err(GraphError::NotFinite { edge: k, what });
             }
-            if e.weight < 0.0 {
-                return Err(GraphError::NegativeWeight {
-                    edge: k,
-                    weight: e.weight,
-                });
+            if let Some(&weight) = [e.weight, e.translation_weight].iter().find(|&&w| w < 0.0) {
+                return Err(GraphError::NegativeWeight { edge: k, weight });
+            }
+            if e.weight > 0.0 && e.translation_weight == 0.0 {
+                return Err(GraphError::ZeroTranslationWeight { edge: k });
             }
         }
         Ok(())
@@ -179,16 +231,6 @@ impl Components {
             component_of,
             members,
         }
-    }
-}
-
-/// The paper's weights (eq. 3): w_ij = s_ij * r_ij, r_ij = exp(-err_ij) / sum_e exp(-err_e),
-/// err = final ICP RMSE in metres. Computed with err - min(err) for stability (same ratio).
-pub fn paper_weights(edges: &mut [Edge]) {
-    let min_err = edges.iter().map(|e| e.rmse_m).fold(f64::INFINITY, f64::min);
-    let total: f64 = edges.iter().map(|e| (-(e.rmse_m - min_err)).exp()).sum();
-    for e in edges.iter_mut() {
-        e.weight = e.overlap * (-(e.rmse_m - min_err)).exp() / total;
     }
 }
 
@@ -297,14 +339,7 @@ mod tests {
     }
 
     fn edge(truth: &[Matrix4<f64>], i: usize, j: usize, overlap: f64) -> Edge {
-        Edge {
-            i,
-            j,
-            m_ij: inverse_rigid(&truth[i]) * truth[j],
-            overlap,
-            rmse_m: 0.1,
-            weight: 1.0,
-        }
+        Edge::new(i, j, inverse_rigid(&truth[i]) * truth[j], overlap, 0.1)
     }
 
     #[test]
@@ -320,25 +355,6 @@ mod tests {
         let c = g.components();
         assert_eq!(c.members, vec![vec![0, 5], vec![1], vec![2, 4], vec![3]]);
         assert_eq!(c.component_of, vec![0, 1, 2, 3, 2, 0]);
-    }
-
-    #[test]
-    fn paper_weights_follow_the_formula_and_survive_large_errors() {
-        let truth: Vec<_> = (0..3).map(|k| pose(k as f64)).collect();
-        let mut edges = vec![edge(&truth, 0, 1, 0.4), edge(&truth, 1, 2, 0.8)];
-        edges[0].rmse_m = 0.5;
-        edges[1].rmse_m = 1.5;
-        paper_weights(&mut edges);
-        let z = (-0.5f64).exp() + (-1.5f64).exp();
-        assert!((edges[0].weight - 0.4 * (-0.5f64).exp() / z).abs() < 1e-15);
-        assert!((edges[1].weight - 0.8 * (-1.5f64).exp() / z).abs() < 1e-15);
-        // Errors of 1000 m would underflow exp(-err) without the shift.
-        edges[0].rmse_m = 1000.0;
-        edges[1].rmse_m = 1001.0;
-        paper_weights(&mut edges);
-        let z = 1.0 + (-1.0f64).exp();
-        assert!((edges[0].weight - 0.4 / z).abs() < 1e-15);
-        assert!(edges[1].weight > 0.0);
     }
 
     #[test]
@@ -404,11 +420,23 @@ mod tests {
             })
         );
         g.edges[0].rmse_m = 0.1;
-        g.edges[0].weight = -1.0;
+        g.edges[0].translation_weight = -1.0;
         assert!(g
             .validate()
             .unwrap_err()
             .to_string()
             .contains("negative weight"));
+        g.edges[0].translation_weight = 1.0;
+        g.edges[1].sigma = Some(EdgeSigma {
+            rotation_rad: Vector3::new(1e-5, f64::INFINITY, 1e-4),
+            translation_m: Vector3::repeat(0.01),
+        });
+        assert_eq!(
+            g.validate(),
+            Err(GraphError::NotFinite {
+                edge: 1,
+                what: "sigma"
+            })
+        );
     }
 }

@@ -12,6 +12,7 @@ use std::time::{Duration, Instant};
 
 use serde::{Deserialize, Serialize};
 
+use crate::fit::FitSigma;
 use crate::icp::IcpStatus;
 
 /// One finished pair (reference i, moving j), as journaled and reported.
@@ -28,6 +29,10 @@ pub struct EdgeRecord {
     pub rmse_m: f64,
     pub inliers: usize,
     pub iterations: usize,
+    /// One-sigma standard errors of T_ij from the last ICP fit (local frame at the
+    /// overlap). None in journals written before they were reported.
+    #[serde(default)]
+    pub sigma: Option<FitSigma>,
     /// Why the pair gave no edge (below --min-overlap, read error, no valid overlap...).
     pub note: Option<String>,
 }
@@ -207,6 +212,10 @@ mod tests {
             rmse_m: 0.3,
             inliers: 100,
             iterations: 4,
+            sigma: Some(FitSigma {
+                rot_deg: [1e-3, 2e-3, 5e-3],
+                trans_m: [0.01, 0.02, 0.003],
+            }),
             note: None,
         }
     }
@@ -237,5 +246,14 @@ mod tests {
             Journal::resume(&path, "other"),
             Err(JournalError::Mismatch { .. })
         ));
+    }
+
+    #[test]
+    fn records_journaled_without_sigma_still_load() {
+        let mut old = serde_json::to_value(record(3)).unwrap();
+        old.as_object_mut().unwrap().remove("sigma");
+        let r: EdgeRecord = serde_json::from_value(old).unwrap();
+        assert_eq!(r.sigma, None);
+        assert_eq!(r.m_world, record(3).m_world);
     }
 }

@@ -114,6 +114,7 @@ pub fn register_pair(
         rmse_m: f64::NAN,
         inliers: 0,
         iterations: 0,
+        sigma: None,
         note: None,
     };
     let reference = StorePyramid::new(store, cache, task.reference);
@@ -137,6 +138,7 @@ pub fn register_pair(
             record.rmse_m = r.rmse_m;
             record.inliers = r.inliers;
             record.iterations = r.iterations;
+            record.sigma = Some(r.sigma);
         }
         Err(e) => {
             tracing::warn!(reference = %ri.id, moving = %mi.id, error = %e, "pair failed");

@@ -1,6 +1,7 @@
 //! Motion averaging (paper step 4): from the pairwise relative poses M_ij of the scene
 //! graph to one pose M_i per DSM. Rotations first, by the spectral method
-//! ([`rotation`]), then translations by weighted linear least squares ([`translation`]);
+//! ([`rotation`]), then translations by weighted linear least squares ([`translation`]),
+//! each with its own per-edge weight (`Edge::weight`, `Edge::translation_weight`);
 //! optionally robust: edges that disagree with the result are dropped (or, if they
 //! hold a component together, down-weighted) and the graph is solved again
 //! ([`robust`]). Each connected component is solved on its own gauge ([`gauge`]).
@@ -29,7 +30,7 @@ use cg::CgTolerance;
 use laplacian::Laplacian;
 use multilevel::Multilevel;
 use nalgebra::{Matrix3, Matrix4, Vector3};
-use robust::{select_outliers, OutlierRule};
+use robust::{select_outliers, OutlierRule, OutlierTest};
 use rotation::{solve_rotations, RotationSettings};
 use std::time::Instant;
 use translation::solve_translations;
@@ -66,10 +67,16 @@ pub struct AveragingOptions {
     pub cg_max_iter: usize,
     /// Relative residual |r| / |b| at which the translation solve stops.
     pub cg_tol: f64,
-    /// Outlier when a residual exceeds max(outlier_k * median, floor).
+    /// Outlier when a normalised residual exceeds max(outlier_k * median, floor),
+    /// the median taken at the first round (see [`robust`]).
     pub outlier_k: f64,
+    /// Floors when residuals are judged in metres and degrees.
     pub outlier_floor_m: f64,
     pub outlier_floor_deg: f64,
+    /// Judge residuals in units of each edge's standard errors when every edge has them.
+    pub outlier_by_sigma: bool,
+    /// Floor when residuals are judged in sigmas.
+    pub outlier_floor_sigma: f64,
     /// Most reject-and-solve-again rounds.
     pub robust_max_rounds: usize,
 }
@@ -87,16 +94,23 @@ impl Default for AveragingOptions {
             outlier_k: 5.0,
             outlier_floor_m: 0.05,
             outlier_floor_deg: 0.005,
+            outlier_by_sigma: true,
+            outlier_floor_sigma: 4.0,
             robust_max_rounds: 10,
         }
     }
 }
 
-/// Disagreement of the averaged poses with one edge: M_i^-1 M_j against M_ij.
+/// Disagreement of the averaged poses with one edge: M_i^-1 M_j against M_ij, the
+/// translation part at the edge's centre.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct EdgeResidual {
     pub rotation_deg: f64,
     pub translation_m: f64,
+    /// Rotation vector of R_ij^T (R_i^T R_j), radians, about the axes of j's frame.
+    pub rotation_rad: Vector3<f64>,
+    /// M_i^-1 M_j c - M_ij c for the edge's centre c, in i's frame.
+    pub offset_m: Vector3<f64>,
 }
 
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -154,7 +168,20 @@ pub fn average(
     let _span =
         tracing::info_span!("averaging", nodes = graph.n, edges = graph.edges.len()).entered();
     let components = graph.components();
-    let mut weights: Vec<f64> = graph.edges.iter().map(|e| e.weight).collect();
+    let mut weights = Weights {
+        rotation: graph.edges.iter().map(|e| e.weight).collect(),
+        translation: graph
+            .edges
+            .iter()
+            .map(|e| {
+                if e.weight > 0.0 {
+                    e.translation_weight
+                } else {
+                    0.0
+                }
+            })
+            .collect(),
+    };
     let mut solver = Solver::new(graph, &components, options);
     // Identity start: DSM rotations are tiny, and the spectral solver is global anyway.
     let mut rotations = vec![Matrix3::identity(); graph.n];
@@ -166,16 +193,21 @@ pub fn average(
         k: options.outlier_k,
         floor_m: options.outlier_floor_m,
         floor_deg: options.outlier_floor_deg,
+        floor_sigma: options.outlier_floor_sigma,
+        by_sigma: options.outlier_by_sigma,
     };
     // Residuals do not depend on the gauge: the last ones computed stay valid.
     let mut residuals = None;
+    let mut test = None;
     for _ in 0..if options.robust {
         options.robust_max_rounds
     } else {
         0
     } {
         let current = edge_residuals(graph, &assemble(&rotations, &translations));
-        let round = select_outliers(graph, &weights, &current, &protected, rule);
+        let test =
+            test.get_or_insert_with(|| OutlierTest::new(graph, &weights.rotation, &current, rule));
+        let round = select_outliers(graph, &weights.rotation, &current, &protected, test, rule);
         residuals = Some(current);
         if round.dropped.is_empty() && round.downweighted.is_empty() {
             break;
@@ -187,11 +219,13 @@ pub fn average(
             "outlier edges rejected"
         );
         for &k in &round.dropped {
-            weights[k] = 0.0;
+            weights.rotation[k] = 0.0;
+            weights.translation[k] = 0.0;
             dropped.push(k);
         }
         for &(k, factor) in &round.downweighted {
-            weights[k] *= factor;
+            weights.rotation[k] *= factor;
+            weights.translation[k] *= factor;
             protected[k] = true;
             downweighted.push(k);
         }
@@ -248,6 +282,7 @@ fn check_options(graph: &PoseGraph, options: &AveragingOptions) -> Result<(), Av
         ("outlier_k", options.outlier_k),
         ("outlier_floor_m", options.outlier_floor_m),
         ("outlier_floor_deg", options.outlier_floor_deg),
+        ("outlier_floor_sigma", options.outlier_floor_sigma),
     ];
     if let Some((name, value)) = positive.iter().find(|(_, v)| !(v.is_finite() && *v > 0.0)) {
         return Err(AveragingError::InvalidOptions(format!(
@@ -272,6 +307,12 @@ fn active_laplacian(graph: &PoseGraph, weights: &[f64]) -> Laplacian {
         .map(|(e, &w)| (e.i as u32, e.j as u32, w))
         .collect();
     Laplacian::new(graph.n, edges)
+}
+
+/// The current per-edge weights of the two solves (0: edge inactive).
+struct Weights {
+    rotation: Vec<f64>,
+    translation: Vec<f64>,
 }
 
 fn assemble(rotations: &[Matrix3<f64>], translations: &[Vector3<f64>]) -> Vec<Matrix4<f64>> {
@@ -315,15 +356,19 @@ impl<'a> Solver<'a> {
     }
 
     /// Refines `rotations` and `translations` (used as starting points) for `weights`.
+    /// The translation solve has its own Laplacian (and preconditioner) when its
+    /// weights are not those of the rotations.
     fn solve(
         &mut self,
-        weights: &[f64],
+        weights: &Weights,
         rotations: &mut Vec<Matrix3<f64>>,
         translations: &mut Vec<Vector3<f64>>,
     ) {
         let started = Instant::now();
         let coarsen = self.options.preconditioner == Preconditioner::Multigrid;
-        let hierarchy = Multilevel::new(active_laplacian(self.graph, weights), coarsen);
+        let hierarchy = Multilevel::new(active_laplacian(self.graph, &weights.rotation), coarsen);
+        let translation_hierarchy = (weights.translation != weights.rotation)
+            .then(|| Multilevel::new(active_laplacian(self.graph, &weights.translation), coarsen));
         let set_up = Instant::now();
         self.timings.setup_s += (set_up - started).as_secs_f64();
         let settings = RotationSettings {
@@ -333,7 +378,7 @@ impl<'a> Solver<'a> {
         };
         let solution = solve_rotations(
             self.graph,
-            weights,
+            &weights.rotation,
             self.components,
             &hierarchy,
             std::mem::take(rotations),
@@ -353,10 +398,10 @@ impl<'a> Solver<'a> {
         let start = std::mem::take(translations);
         let solution = solve_translations(
             self.graph,
-            weights,
+            &weights.translation,
             self.components,
             rotations,
-            &hierarchy,
+            translation_hierarchy.as_ref().unwrap_or(&hierarchy),
             start,
             tolerance,
         );

@@ -1,17 +1,24 @@
 //! Edge residuals and outlier rejection. The residual of edge (i, j) compares the
-//! averaged relative pose M_i^-1 M_j with the measured M_ij: rotation angle in degrees
-//! and translation offset in metres. An edge is an outlier when either exceeds
-//! max(k * median, floor) over the active edges. Each round rejects only the clear
-//! culprits: edges at least half as bad as the worst, and no two sharing a node (an
-//! outlier's error leaks into its neighbours' residuals; re-solving shows the truth).
-//! A rejection that would disconnect a component is turned into a down-weighting
-//! (w *= threshold / residual), chosen Kruskal-style so the least bad edges keep the
-//! graph connected.
+//! averaged relative pose M_i^-1 M_j with the measured M_ij: the rotation between
+//! them, and the offset of the image of the edge's centre (where the pair's
+//! translation was measured). An edge is an outlier when either, normalised,
+//! exceeds max(k * scale, floor), the scale being the median of the normalised
+//! residuals over the active edges at the first round, kept for the later rounds (a
+//! median taken again after each round shrinks as edges go, and rejection would
+//! cascade through good edges). Normalised by the edge's own standard errors when
+//! every edge has them and the options ask for it (per axis: a pair loose about one
+//! axis is judged on that axis alone; the scale absorbs sigmas that are all too
+//! small or too large, and the floor is in sigmas), else by the floors in metres and
+//! degrees. Each round rejects only the clear culprits: edges at least half as bad as
+//! the worst, and no two sharing a node (an outlier's error leaks into its
+//! neighbours' residuals; re-solving shows the truth). A rejection that would
+//! disconnect a component is turned into a down-weighting (w *= threshold /
+//! residual), chosen Kruskal-style so the least bad edges keep the graph connected.
 
 use super::EdgeResidual;
-use crate::graph::{PoseGraph, UnionFind};
-use crate::poses::rigid::{rotation, rotation_between_deg, translation};
-use nalgebra::Matrix4;
+use crate::graph::{Edge, PoseGraph, UnionFind};
+use crate::poses::rigid::{apply, rotation, translation};
+use nalgebra::{Matrix3, Matrix4, Vector3};
 
 /// Residuals of every edge (active or not) against the poses.
 pub fn edge_residuals(graph: &PoseGraph, poses: &[Matrix4<f64>]) -> Vec<EdgeResidual> {
@@ -19,16 +26,36 @@ pub fn edge_residuals(graph: &PoseGraph, poses: &[Matrix4<f64>]) -> Vec<EdgeResi
         .edges
         .iter()
         .map(|e| {
-            // M_i^-1 M_j = [R_i^T R_j, R_i^T (t_j - t_i)]
+            // M_i^-1 M_j = [R_i^T R_j, R_i^T (t_j - t_i)], applied to the centre.
             let r_i = rotation(&poses[e.i]);
             let r_est = r_i.tr_mul(&rotation(&poses[e.j]));
-            let t_est = r_i.tr_mul(&(translation(&poses[e.j]) - translation(&poses[e.i])));
+            let moved_est =
+                r_i.tr_mul(&(apply(&poses[e.j], &e.centre_j) - translation(&poses[e.i])));
+            let rotation_rad = rotation_vector(&rotation(&e.m_ij).tr_mul(&r_est));
+            let offset_m = moved_est - apply(&e.m_ij, &e.centre_j);
             EdgeResidual {
-                rotation_deg: rotation_between_deg(&rotation(&e.m_ij), &r_est),
-                translation_m: (t_est - translation(&e.m_ij)).norm(),
+                rotation_deg: rotation_rad.norm().to_degrees(),
+                translation_m: offset_m.norm(),
+                rotation_rad,
+                offset_m,
             }
         })
         .collect()
+}
+
+/// The rotation vector (axis times angle, radians) of a rotation matrix, accurate
+/// for tiny angles.
+fn rotation_vector(r: &Matrix3<f64>) -> Vector3<f64> {
+    let skew = Vector3::new(
+        r[(2, 1)] - r[(1, 2)],
+        r[(0, 2)] - r[(2, 0)],
+        r[(1, 0)] - r[(0, 1)],
+    ) * 0.5;
+    let sin = skew.norm();
+    if sin == 0.0 {
+        return skew;
+    }
+    skew * (sin.atan2((r.trace() - 1.0) * 0.5) / sin)
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -36,6 +63,10 @@ pub(crate) struct OutlierRule {
     pub k: f64,
     pub floor_m: f64,
     pub floor_deg: f64,
+    /// Floor of the normalised residuals when they are divided by the edges' sigmas.
+    pub floor_sigma: f64,
+    /// Divide by the edges' standard errors when every edge has them.
+    pub by_sigma: bool,
 }
 
 /// What one round decided: edges to drop, and bridges to keep with a weight factor.
@@ -45,34 +76,108 @@ pub(crate) struct OutlierRound {
     pub downweighted: Vec<(usize, f64)>,
 }
 
+/// The outlier test of one averaging: normalisation and limits fixed at the first round.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct OutlierTest {
+    pub by_sigma: bool,
+    /// Normalised rotation / translation residuals above these are outliers.
+    pub limit_rotation: f64,
+    pub limit_translation: f64,
+}
+
+/// A residual in units of its test: sigmas (per axis, root of the sum of squares) or
+/// the floors (degrees / metres).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct NormalisedResidual {
+    pub rotation: f64,
+    pub translation: f64,
+}
+
+impl OutlierTest {
+    /// Fixes the limits from the residuals of the first solve over the active edges.
+    pub fn new(
+        graph: &PoseGraph,
+        weights: &[f64],
+        residuals: &[EdgeResidual],
+        rule: OutlierRule,
+    ) -> Self {
+        let by_sigma = rule.by_sigma && graph.edges.iter().all(|e| e.sigma.is_some());
+        let unit = OutlierTest {
+            by_sigma,
+            limit_rotation: 1.0,
+            limit_translation: 1.0,
+        };
+        let normalised: Vec<NormalisedResidual> = (0..graph.edges.len())
+            .filter(|&k| weights[k] > 0.0)
+            .map(|k| unit.normalise(&graph.edges[k], &residuals[k], rule))
+            .collect();
+        let median = |f: &dyn Fn(&NormalisedResidual) -> f64| {
+            let mut values: Vec<f64> = normalised.iter().map(f).collect();
+            if values.is_empty() {
+                return 0.0;
+            }
+            let mid = values.len() / 2;
+            *values.select_nth_unstable_by(mid, f64::total_cmp).1
+        };
+        let floor = if by_sigma { rule.floor_sigma } else { 1.0 };
+        OutlierTest {
+            by_sigma,
+            limit_rotation: (rule.k * median(&|r| r.rotation)).max(floor),
+            limit_translation: (rule.k * median(&|r| r.translation)).max(floor),
+        }
+    }
+
+    pub fn normalise(
+        &self,
+        edge: &Edge,
+        residual: &EdgeResidual,
+        rule: OutlierRule,
+    ) -> NormalisedResidual {
+        match edge.sigma.filter(|_| self.by_sigma) {
+            Some(sigma) => NormalisedResidual {
+                rotation: in_sigmas(&residual.rotation_rad, &sigma.rotation_rad),
+                translation: in_sigmas(&residual.offset_m, &sigma.translation_m),
+            },
+            None => NormalisedResidual {
+                rotation: residual.rotation_deg / rule.floor_deg,
+                translation: residual.translation_m / rule.floor_m,
+            },
+        }
+    }
+
+    /// How far past its limit a residual is (> 1: outlier).
+    fn badness(&self, r: NormalisedResidual) -> f64 {
+        (r.rotation / self.limit_rotation).max(r.translation / self.limit_translation)
+    }
+}
+
+/// |v / sigma| over the axes with a positive sigma (the others are not estimated).
+fn in_sigmas(v: &Vector3<f64>, sigma: &Vector3<f64>) -> f64 {
+    v.iter()
+        .zip(sigma.iter())
+        .filter(|(_, &s)| s > 0.0)
+        .map(|(x, s)| (x / s).powi(2))
+        .sum::<f64>()
+        .sqrt()
+}
+
 /// Picks this round's outliers among the active (weight > 0), unprotected edges.
 pub(crate) fn select_outliers(
     graph: &PoseGraph,
     weights: &[f64],
     residuals: &[EdgeResidual],
     protected: &[bool],
+    test: &OutlierTest,
     rule: OutlierRule,
 ) -> OutlierRound {
-    let candidates_pool: Vec<usize> = (0..graph.edges.len())
-        .filter(|&k| weights[k] > 0.0 && !protected[k])
-        .collect();
-    let median_of = |f: &dyn Fn(&EdgeResidual) -> f64| {
-        let mut values: Vec<f64> = candidates_pool.iter().map(|&k| f(&residuals[k])).collect();
-        if values.is_empty() {
-            return 0.0;
-        }
-        let mid = values.len() / 2;
-        *values.select_nth_unstable_by(mid, f64::total_cmp).1
-    };
-    let limit_m = (rule.k * median_of(&|r| r.translation_m)).max(rule.floor_m);
-    let limit_deg = (rule.k * median_of(&|r| r.rotation_deg)).max(rule.floor_deg);
-    let badness: Vec<f64> = residuals
+    let badness: Vec<f64> = graph
+        .edges
         .iter()
-        .map(|r| (r.translation_m / limit_m).max(r.rotation_deg / limit_deg))
+        .zip(residuals)
+        .map(|(e, r)| test.badness(test.normalise(e, r, rule)))
         .collect();
-    let mut outliers: Vec<usize> = candidates_pool
-        .into_iter()
-        .filter(|&k| badness[k] > 1.0)
+    let mut outliers: Vec<usize> = (0..graph.edges.len())
+        .filter(|&k| weights[k] > 0.0 && !protected[k] && badness[k] > 1.0)
         .collect();
     if outliers.is_empty() {
         return OutlierRound::default();
@@ -131,13 +236,56 @@ mod tests {
         k: 5.0,
         floor_m: 0.05,
         floor_deg: 0.005,
+        floor_sigma: 4.0,
+        by_sigma: true,
     };
 
     fn residual(translation_m: f64) -> EdgeResidual {
         EdgeResidual {
             rotation_deg: 0.0,
             translation_m,
+            rotation_rad: Vector3::zeros(),
+            offset_m: Vector3::new(translation_m, 0.0, 0.0),
         }
+    }
+
+    /// The test as `average` builds it, then one round.
+    fn one_round(
+        graph: &PoseGraph,
+        weights: &[f64],
+        residuals: &[EdgeResidual],
+        protected: &[bool],
+    ) -> OutlierRound {
+        let test = OutlierTest::new(graph, weights, residuals, RULE);
+        select_outliers(graph, weights, residuals, protected, &test, RULE)
+    }
+
+    #[test]
+    fn residuals_are_taken_at_the_centre() {
+        // A measured rotation error of 0.01 deg about z turns about the centre: the
+        // residual there is pure rotation, while at the origin, 300 m away, it
+        // would be 5 cm of translation.
+        let mut g = generate(&SyntheticSpec::exact(3, Topology::Chain { reach: 1 }, 1));
+        let e = &mut g.graph.edges[0];
+        e.centre_j = Vector3::new(300.0, 0.0, 0.0);
+        let turn = crate::poses::rigid::rotation_from_axis_angle(&Vector3::new(
+            0.0,
+            0.0,
+            1e-2f64.to_radians(),
+        ));
+        let about_centre =
+            crate::poses::rigid::from_parts(&turn, &(e.centre_j - turn * e.centre_j));
+        e.m_ij *= about_centre;
+        let r = edge_residuals(&g.graph, &g.truth)[0];
+        assert!((r.rotation_deg - 0.01).abs() < 1e-12, "{r:?}");
+        assert!((r.rotation_rad - Vector3::new(0.0, 0.0, -1e-2f64.to_radians())).norm() < 1e-15);
+        assert!(r.translation_m < 1e-9, "{r:?}");
+        g.graph.edges[0].centre_j = Vector3::zeros();
+        let r = edge_residuals(&g.graph, &g.truth)[0];
+        assert!(
+            (r.translation_m - 300.0 * 1e-2f64.to_radians()).abs() < 1e-6,
+            "{r:?}"
+        );
     }
 
     #[test]
@@ -170,7 +318,7 @@ mod tests {
         // 10 = (5, 6) is worst; 11 = (5, 7) shares node 5 and waits; 20 = (10, 11) is
         // at least half as bad and goes too; 30 = (15, 16) is far less bad and waits.
         let residuals = with(&[(10, 4.0), (11, 3.0), (20, 2.5), (30, 1.0)]);
-        let round = select_outliers(&g.graph, &weights, &residuals, &protected, RULE);
+        let round = one_round(&g.graph, &weights, &residuals, &protected);
         assert_eq!(
             round,
             OutlierRound {
@@ -180,7 +328,7 @@ mod tests {
         );
         // The bridge is never dropped, only down-weighted.
         let residuals = with(&[(37, 2.5)]);
-        let round = select_outliers(&g.graph, &weights, &residuals, &protected, RULE);
+        let round = one_round(&g.graph, &weights, &residuals, &protected);
         assert_eq!(round.dropped, Vec::<usize>::new());
         assert_eq!(round.downweighted.len(), 1);
         assert_eq!(round.downweighted[0].0, 37);
@@ -188,13 +336,73 @@ mod tests {
         // Protected edges are not looked at again.
         let mut protected_bridge = protected.clone();
         protected_bridge[37] = true;
-        let round = select_outliers(&g.graph, &weights, &residuals, &protected_bridge, RULE);
+        let round = one_round(&g.graph, &weights, &residuals, &protected_bridge);
         assert_eq!(round, OutlierRound::default());
         // Nothing above the floors (0.05 m here): nothing happens.
         let residuals = with(&[(3, 0.045)]);
         assert_eq!(
-            select_outliers(&g.graph, &weights, &residuals, &protected, RULE),
+            one_round(&g.graph, &weights, &residuals, &protected),
             OutlierRound::default()
         );
+    }
+
+    fn with_sigma(edge: &mut Edge, rotation_rad: [f64; 3], translation_m: [f64; 3]) {
+        edge.sigma = Some(crate::graph::EdgeSigma {
+            rotation_rad: Vector3::from(rotation_rad),
+            translation_m: Vector3::from(translation_m),
+        });
+    }
+
+    #[test]
+    fn sigma_normalised_residuals_judge_each_axis_by_its_own_spread() {
+        // 39 edges whose residuals are all about one sigma; sigma 0.1 m in x, 0.01 m in z.
+        let mut g = generate(&SyntheticSpec::exact(21, Topology::Chain { reach: 2 }, 1));
+        for e in &mut g.graph.edges {
+            with_sigma(e, [1e-5; 3], [0.1, 0.1, 0.01]);
+        }
+        let n = g.graph.edges.len();
+        let (weights, protected) = (vec![1.0; n], vec![false; n]);
+        let mut residuals: Vec<EdgeResidual> = (0..n)
+            .map(|k| EdgeResidual {
+                offset_m: Vector3::new(0.1, 0.0, 0.005 * (k % 3) as f64),
+                ..residual(0.0)
+            })
+            .collect();
+        // Edge 5 is 0.3 m off in x (3 sigma): kept. Edge 30 is 0.3 m off in z (30 sigma).
+        residuals[5].offset_m.x = 0.3;
+        residuals[30].offset_m.z = 0.3;
+        let round = one_round(&g.graph, &weights, &residuals, &protected);
+        assert_eq!(round.dropped, vec![30]);
+        // Without sigmas both are 0.3 m and the metre floors judge them alike.
+        g.graph.edges[0].sigma = None;
+        let test = OutlierTest::new(&g.graph, &weights, &residuals, RULE);
+        assert!(!test.by_sigma);
+    }
+
+    #[test]
+    fn sigmas_that_are_all_too_small_do_not_drop_everything() {
+        // Every residual is 20 claimed sigmas: the scale absorbs it (limit 5 x 20),
+        // and only the edge at 300 sigmas goes.
+        let mut g = generate(&SyntheticSpec::exact(21, Topology::Chain { reach: 2 }, 1));
+        for e in &mut g.graph.edges {
+            with_sigma(e, [1e-6; 3], [0.001; 3]);
+        }
+        let n = g.graph.edges.len();
+        let (weights, protected) = (vec![1.0; n], vec![false; n]);
+        let mut residuals = vec![residual(0.02); n];
+        residuals[12] = residual(0.3);
+        let test = OutlierTest::new(&g.graph, &weights, &residuals, RULE);
+        assert!((test.limit_translation - 100.0).abs() < 1e-9, "{test:?}");
+        assert_eq!(test.limit_rotation, 4.0); // the floor, in sigmas
+        let round = select_outliers(&g.graph, &weights, &residuals, &protected, &test, RULE);
+        assert_eq!(round.dropped, vec![12]);
+        // The limits stay for later rounds: with edge 12 gone, residuals of 5x the
+        // new median (below the first) are not rejected.
+        let mut weights = weights;
+        weights[12] = 0.0;
+        let mut later = vec![residual(0.004); n];
+        later[3] = residual(0.05);
+        let round = select_outliers(&g.graph, &weights, &later, &protected, &test, RULE);
+        assert_eq!(round, OutlierRound::default());
     }
 }

@@ -1,11 +1,14 @@
 //! Synthetic pose graphs with known truth, for tests and `tools/bench_averaging.rs`:
 //! tiny random rotations and metre-scale translations (as between real DSMs), edges
 //! laid out as a chain, a tile grid or a random graph, relative poses with Gaussian
-//! noise, the paper's weights. Also the gauge-free error of estimated poses.
+//! noise (optionally of a different size on each edge, and about a point away from
+//! the origin, as DSM pairs measured at their overlap), the paper's weights and, for
+//! noisy graphs, each edge's true noise level as its standard errors. Also the
+//! gauge-free error of estimated poses.
 //! Deterministic: a seeded SplitMix64 generator, no external crate.
 
 use super::gauge::fix_gauge;
-use crate::graph::{paper_weights, Components, Edge, PoseGraph};
+use crate::graph::{paper_weights, Components, Edge, EdgeSigma, PoseGraph};
 use crate::poses::rigid::{
     from_parts, inverse_rigid, rotation, rotation_between_deg, rotation_from_axis_angle,
     translation,
@@ -43,6 +46,13 @@ pub struct SyntheticSpec {
     pub noise_rotation_deg: f64,
     /// Noise on each relative translation, metres per axis (standard deviation).
     pub noise_translation_m: f64,
+    /// Each edge's noise is scaled by a factor log-uniform in [1/spread, spread]
+    /// (1: the same noise level everywhere).
+    pub noise_scale_spread: f64,
+    /// Edges are measured at a centre drawn around the origin with this standard
+    /// deviation per horizontal axis, metres (0: at the origin); the rotation noise
+    /// turns about that centre, as for DSM pairs registered on their overlap.
+    pub centre_spread_m: f64,
     pub seed: u64,
 }
 
@@ -56,6 +66,8 @@ impl SyntheticSpec {
             translation_spread_m: 2.0,
             noise_rotation_deg: 0.0,
             noise_translation_m: 0.0,
+            noise_scale_spread: 1.0,
+            centre_spread_m: 0.0,
             seed,
         }
     }
@@ -84,7 +96,7 @@ pub struct SyntheticGraph {
 }
 
 /// Builds the graph: M_ij = (M_i^-1 M_j) * noise, overlap in [0.3, 0.9], rmse from the
-/// noise level, paper weights.
+/// noise level, paper weights; sigma = the edge's noise level when there is noise.
 pub fn generate(spec: &SyntheticSpec) -> SyntheticGraph {
     let mut rng = SplitMix64::new(spec.seed);
     let truth: Vec<Matrix4<f64>> = (0..spec.nodes)
@@ -96,17 +108,40 @@ pub fn generate(spec: &SyntheticSpec) -> SyntheticGraph {
         .collect();
     let pairs = pairs(spec, &mut rng);
     let mut edges = Vec::with_capacity(pairs.len());
+    let noisy = spec.noise_rotation_deg > 0.0 || spec.noise_translation_m > 0.0;
     for (i, j) in pairs {
-        let noise_r =
-            rotation_from_axis_angle(&normal3(&mut rng, spec.noise_rotation_deg.to_radians()));
-        let noise = from_parts(&noise_r, &normal3(&mut rng, spec.noise_translation_m));
+        // Extra draws only when asked for, so older specs keep their numbers.
+        let scale = if spec.noise_scale_spread > 1.0 {
+            spec.noise_scale_spread.powf(2.0 * rng.next_f64() - 1.0)
+        } else {
+            1.0
+        };
+        let centre_j = if spec.centre_spread_m > 0.0 {
+            Vector3::new(rng.normal(), rng.normal(), 0.0) * spec.centre_spread_m
+        } else {
+            Vector3::zeros()
+        };
+        let sigma_rad = spec.noise_rotation_deg.to_radians() * scale;
+        let sigma_m = spec.noise_translation_m * scale;
+        let noise_r = rotation_from_axis_angle(&normal3(&mut rng, sigma_rad));
+        // Turns about centre_j, then shifts: p -> R (p - c) + c + t.
+        let shift = normal3(&mut rng, sigma_m) + centre_j - noise_r * centre_j;
+        let noise = from_parts(&noise_r, &shift);
+        let overlap = 0.3 + 0.6 * rng.next_f64();
+        let rmse_m = spec.noise_translation_m * (1.0 + rng.next_f64()) + 0.05;
         edges.push(Edge {
-            i,
-            j,
-            m_ij: inverse_rigid(&truth[i]) * truth[j] * noise,
-            overlap: 0.3 + 0.6 * rng.next_f64(),
-            rmse_m: spec.noise_translation_m * (1.0 + rng.next_f64()) + 0.05,
-            weight: 1.0,
+            sigma: noisy.then(|| EdgeSigma {
+                rotation_rad: Vector3::repeat(sigma_rad),
+                translation_m: Vector3::repeat(sigma_m),
+            }),
+            centre_j,
+            ..Edge::new(
+                i,
+                j,
+                inverse_rigid(&truth[i]) * truth[j] * noise,
+                overlap,
+                rmse_m,
+            )
         });
     }
     paper_weights(&mut edges);

@@ -1,5 +1,10 @@
 //! Translation averaging given the rotations (paper step 4): weighted linear least
-//! squares  min sum_ij w_ij |t_j - t_i - R_i t_ij|^2  (from t_ij = R_i^T (t_j - t_i)).
+//! squares  min sum_ij w_ij |t_j - t_i - b_ij|^2, b_ij = R_i M_ij c - R_j c, from
+//! M_i M_ij c = M_j c at the point c of j's frame where the pair's translation was
+//! measured (its overlap centre). With c = 0 this is the paper's
+//! b_ij = R_i t_ij (from t_ij = R_i^T (t_j - t_i)); at the centre, M_ij c depends on
+//! the pair's translation alone, so the pair's rotation error (seen by the rotation
+//! averaging) does not come back through the lever arm |c|.
 //! The normal equations are the weighted graph Laplacian L t = b with three
 //! right-hand sides (x, y, z), solved by conjugate gradient preconditioned by the
 //! Jacobi step or the multigrid V-cycle ([`super::multilevel`]): one pass over a
@@ -10,7 +15,7 @@
 use super::cg::{pcg, CgReport, CgTolerance};
 use super::multilevel::Multilevel;
 use crate::graph::{Components, PoseGraph};
-use crate::poses::rigid::translation;
+use crate::poses::rigid::apply;
 use nalgebra::{Matrix3, Vector3};
 
 #[derive(Clone, Debug)]
@@ -33,7 +38,8 @@ pub(crate) fn solve_translations(
     let mut rhs = vec![Vector3::zeros(); graph.n];
     for (e, &w) in graph.edges.iter().zip(weights) {
         if w > 0.0 {
-            let offset = rotations[e.i] * translation(&e.m_ij) * w;
+            let b_ij = rotations[e.i] * apply(&e.m_ij, &e.centre_j) - rotations[e.j] * e.centre_j;
+            let offset = b_ij * w;
             rhs[e.j] += offset;
             rhs[e.i] -= offset;
         }
@@ -74,7 +80,7 @@ fn remove_component_means(components: &Components, v: &mut [Vector3<f64>]) {
 mod tests {
     use super::*;
     use crate::averaging::synthetic::{generate, SyntheticSpec, Topology};
-    use crate::poses::rigid::rotation;
+    use crate::poses::rigid::{rotation, translation};
 
     #[test]
     fn exact_rotations_give_exact_translations_up_to_a_shift() {

@@ -5,6 +5,7 @@ use std::path::PathBuf;
 
 use dsmstream::align::{align, AlignConfig, AlignError};
 use dsmstream::cache::ChunkCache;
+use dsmstream::graph::Weighting;
 use dsmstream::pipeline::PipelineConfig;
 use dsmstream::poses::GraphKind;
 use dsmstream::InputError;
@@ -18,6 +19,15 @@ pub enum GraphArg {
     Full,
     /// Kruskal maximum-overlap spanning tree, poses chained from the root (baseline).
     Mst,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug)]
+pub enum WeightsArg {
+    /// Inverse variances from each pair's ICP standard errors, separate for
+    /// rotation and translation (outliers judged in sigmas).
+    Information,
+    /// The paper's w = s_ij * r_ij (overlap times softmax of -RMSE), both parts.
+    Paper,
 }
 
 #[derive(clap::Args, Debug)]
@@ -36,6 +46,9 @@ pub struct Args {
     /// full (motion averaging) or mst (greedy spanning tree baseline).
     #[arg(long, value_enum, default_value = "full")]
     pub graph: GraphArg,
+    /// Edge weights of the motion averaging: information (inverse variances) or paper.
+    #[arg(long, value_enum, default_value = "information")]
+    pub weights: WeightsArg,
     /// Pairs whose overlap score s_ij is below this give no edge.
     #[arg(long, default_value_t = 0.1)]
     pub min_overlap: f64,
@@ -68,6 +81,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         graph: match args.graph {
             GraphArg::Full => GraphKind::Full,
             GraphArg::Mst => GraphKind::Mst,
+        },
+        weights: match args.weights {
+            WeightsArg::Information => Weighting::Information,
+            WeightsArg::Paper => Weighting::Paper,
         },
         anchor: args.anchor.clone(),
         resume: args.resume,
@@ -117,6 +134,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     for f in &failed {
         eprintln!("warning: pair {f} gave no edge");
     }
+    if outcome.weights != config.weights && matches!(config.graph, GraphKind::Full) {
+        eprintln!(
+            "warning: some pairs have no standard errors (journaled by an older version, or --metric point-to-point): paper weights used"
+        );
+    }
     if outcome.components.len() > 1 {
         eprintln!(
             "warning: the scene graph has {} disconnected components, each solved on its own:",
@@ -131,7 +153,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mean_rmse = kept.iter().map(|e| e.rmse_m).sum::<f64>() / kept.len().max(1) as f64;
     let max_res = kept.iter().map(|e| e.residual_m).fold(0.0, f64::max);
     println!(
-        "aligned {} DSMs: {} edges ({} dropped), {} pairs without edge, graph {}, gauge {}, {:.1} s",
+        "aligned {} DSMs: {} edges ({} dropped), {} pairs without edge, graph {}{}, gauge {}, {:.1} s",
         p.poses.len(),
         p.edges.len(),
         p.edges.len() - kept.len(),
@@ -139,6 +161,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         match p.graph {
             GraphKind::Full => "full",
             GraphKind::Mst => "mst",
+        },
+        match p.graph {
+            GraphKind::Full => format!(", weights {}", outcome.weights.label()),
+            GraphKind::Mst => String::new(),
         },
         p.gauge.label(),
         started.elapsed().as_secs_f64()

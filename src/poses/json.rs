@@ -263,6 +263,7 @@ mod tests {
                 overlap: next() + 0.5,
                 rmse_m: next() + 0.5,
                 weight: (next() + 0.5) * 1e-7,
+                translation_weight: (k != 3).then(|| next() + 0.5),
                 iterations: 12,
                 inliers: 18211,
                 residual_m: (next() + 0.5) * 1e-3,

@@ -65,7 +65,12 @@ pub struct EdgeEntry {
     pub overlap: f64,
     #[serde(rename = "rmse")]
     pub rmse_m: f64,
+    /// Weight of the rotation in the averaging (and of the translation with the
+    /// paper's weights).
     pub weight: f64,
+    /// Weight of the translation in the averaging (absent in older files).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub translation_weight: Option<f64>,
     pub iterations: u32,
     pub inliers: u64,
     /// Translation disagreement of the averaged poses with this edge, metres.
@@ -126,6 +131,9 @@ pub struct PosesSummary {
     pub max_residual_deg: f64,
     pub rotation_iterations: usize,
     pub cg_iterations: usize,
+    /// The edge weights used (absent in older files).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub weights: Option<crate::graph::Weighting>,
 }
 
 impl PosesSummary {
@@ -154,6 +162,7 @@ impl PosesSummary {
             max_residual_deg: rotation.iter().copied().fold(0.0, f64::max),
             rotation_iterations: result.rotation_iterations,
             cg_iterations: result.cg_iterations,
+            weights: None,
         }
     }
 }
