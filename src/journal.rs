@@ -26,6 +26,8 @@ pub struct EdgeRecord {
     pub status: Option<IcpStatus>,
     /// Row-major T_ij: p_reference = T_ij p_moving (world coordinates).
     pub m_world: Option<[[f64; 4]; 4]>,
+    /// NaN when the pair gave no edge (JSON null: serde_json writes NaN so).
+    #[serde(deserialize_with = "nan_if_null")]
     pub rmse_m: f64,
     pub inliers: usize,
     pub iterations: usize,
@@ -35,6 +37,11 @@ pub struct EdgeRecord {
     pub sigma: Option<FitSigma>,
     /// Why the pair gave no edge (below --min-overlap, read error, no valid overlap...).
     pub note: Option<String>,
+}
+
+/// Reads a number, or null as NaN.
+fn nan_if_null<'de, D: serde::Deserializer<'de>>(deserializer: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(deserializer)?.unwrap_or(f64::NAN))
 }
 
 impl EdgeRecord {
@@ -246,6 +253,31 @@ mod tests {
             Journal::resume(&path, "other"),
             Err(JournalError::Mismatch { .. })
         ));
+    }
+
+    #[test]
+    fn a_pair_without_edge_survives_resume() {
+        // Its rmse is NaN, written as null: reading it must not stop the resume
+        // there (every later pair would be redone).
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("poses.json.journal");
+        let mut j = Journal::create(&path, "s1").unwrap();
+        let skipped = EdgeRecord {
+            status: None,
+            m_world: None,
+            rmse_m: f64::NAN,
+            sigma: None,
+            note: Some("overlap 0.050 below --min-overlap".into()),
+            ..record(0)
+        };
+        j.append(&skipped).unwrap();
+        j.append(&record(1)).unwrap();
+        j.flush().unwrap();
+        drop(j);
+        let (_, records) = Journal::resume(&path, "s1").unwrap();
+        assert_eq!(records.len(), 2);
+        assert!(records[0].rmse_m.is_nan() && records[0].m_world.is_none());
+        assert_eq!(records[1], record(1));
     }
 
     #[test]
