@@ -244,7 +244,7 @@ pub fn align(
 }
 
 /// The graph edge of a registered pair, in the local frame: M_ij, its standard
-/// errors, and the centre of the two footprints' intersection at the mean height
+/// errors ([`EdgeSigma::from_fit`]), and the centre of the two footprints' intersection at the mean height
 /// as the point where its translation was measured.
 fn edge(store: &Store, r: &EdgeRecord, origin: &Vector3<f64>) -> Edge {
     let m = r.m_world.expect("usable edges have a matrix");
@@ -261,10 +261,7 @@ fn edge(store: &Store, r: &EdgeRecord, origin: &Vector3<f64>) -> Edge {
         (a.height_stats.mean + b.height_stats.mean) / 2.0,
     );
     Edge {
-        sigma: r.sigma.map(|s| EdgeSigma {
-            rotation_rad: Vector3::from(s.rot_deg).map(f64::to_radians),
-            translation_m: Vector3::from(s.trans_m),
-        }),
+        sigma: r.sigma.map(|s| EdgeSigma::from_fit(&s, r.overlap)),
         centre_j: centre_world - origin,
         ..Edge::new(i, j, to_local(&m_world, origin), r.overlap, r.rmse_m)
     }

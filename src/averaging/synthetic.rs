@@ -49,10 +49,12 @@ pub struct SyntheticSpec {
     /// Each edge's noise is scaled by a factor log-uniform in [1/spread, spread]
     /// (1: the same noise level everywhere).
     pub noise_scale_spread: f64,
-    /// Edges are measured at a centre drawn around the origin with this standard
-    /// deviation per horizontal axis, metres (0: at the origin); the rotation noise
-    /// turns about that centre, as for DSM pairs registered on their overlap.
-    pub centre_spread_m: f64,
+    /// Nodes sit this far apart on the ground (grid cells, chain steps; random
+    /// graphs spread over the same area), centred on the origin, and each edge is
+    /// measured at the midpoint of its two nodes, its rotation noise turning about
+    /// that point, as for DSM pairs registered on their overlap. 0: every edge is
+    /// measured at the origin.
+    pub spacing_m: f64,
     pub seed: u64,
 }
 
@@ -67,7 +69,7 @@ impl SyntheticSpec {
             noise_rotation_deg: 0.0,
             noise_translation_m: 0.0,
             noise_scale_spread: 1.0,
-            centre_spread_m: 0.0,
+            spacing_m: 0.0,
             seed,
         }
     }
@@ -107,6 +109,7 @@ pub fn generate(spec: &SyntheticSpec) -> SyntheticGraph {
         })
         .collect();
     let pairs = pairs(spec, &mut rng);
+    let positions = node_positions(spec);
     let mut edges = Vec::with_capacity(pairs.len());
     let noisy = spec.noise_rotation_deg > 0.0 || spec.noise_translation_m > 0.0;
     for (i, j) in pairs {
@@ -116,11 +119,7 @@ pub fn generate(spec: &SyntheticSpec) -> SyntheticGraph {
         } else {
             1.0
         };
-        let centre_j = if spec.centre_spread_m > 0.0 {
-            Vector3::new(rng.normal(), rng.normal(), 0.0) * spec.centre_spread_m
-        } else {
-            Vector3::zeros()
-        };
+        let centre_j = (positions[i] + positions[j]) / 2.0;
         let sigma_rad = spec.noise_rotation_deg.to_radians() * scale;
         let sigma_m = spec.noise_translation_m * scale;
         let noise_r = rotation_from_axis_angle(&normal3(&mut rng, sigma_rad));
@@ -152,6 +151,25 @@ pub fn generate(spec: &SyntheticSpec) -> SyntheticGraph {
         },
         truth,
     }
+}
+
+/// Ground positions of the nodes (see [`SyntheticSpec::spacing_m`]), from their own
+/// generator so the rest of the graph does not depend on the spacing.
+pub fn node_positions(spec: &SyntheticSpec) -> Vec<Vector3<f64>> {
+    let n = spec.nodes;
+    let mut rng = SplitMix64::new(spec.seed ^ 0x9e37_79b9_7f4a_7c15);
+    let side = (n as f64).sqrt();
+    let raw: Vec<Vector3<f64>> = (0..n)
+        .map(|k| match spec.topology {
+            Topology::Chain { .. } => Vector3::new(k as f64, 0.0, 0.0),
+            Topology::Grid { width } => Vector3::new((k % width) as f64, (k / width) as f64, 0.0),
+            Topology::Random { .. } => {
+                Vector3::new(rng.next_f64() * side, rng.next_f64() * side, 0.0)
+            }
+        })
+        .collect();
+    let mean = raw.iter().sum::<Vector3<f64>>() / n.max(1) as f64;
+    raw.iter().map(|p| (p - mean) * spec.spacing_m).collect()
 }
 
 fn pairs(spec: &SyntheticSpec, rng: &mut SplitMix64) -> Vec<(usize, usize)> {
