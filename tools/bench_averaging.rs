@@ -5,11 +5,15 @@
 //!
 //! Usage: bench_averaging [--sizes 1000,10000,100000,1000000] [--topology random|grid]
 //!                        [--noise-m 0.02] [--noise-deg 0.002] [--no-robust] [--no-mst]
-//!                        [--jacobi]
+//!                        [--jacobi] [--information SPREAD]
+//!
+//! `--information SPREAD`: each edge's noise scaled by a factor log-uniform in
+//! [1/SPREAD, SPREAD], and information weights (separate rotation / translation
+//! Laplacians) instead of the paper's.
 
 use dsmstream::averaging::synthetic::{generate, pose_errors, SyntheticSpec, Topology};
 use dsmstream::averaging::{average, AveragingOptions, Preconditioner};
-use dsmstream::graph::{chain_poses, mst};
+use dsmstream::graph::{chain_poses, information_weights, mst};
 use std::time::Instant;
 
 struct Config {
@@ -20,6 +24,8 @@ struct Config {
     robust: bool,
     with_mst: bool,
     preconditioner: Preconditioner,
+    /// Some(spread): heteroscedastic noise and information weights.
+    information: Option<f64>,
 }
 
 fn parse_args() -> Result<Config, String> {
@@ -31,6 +37,7 @@ fn parse_args() -> Result<Config, String> {
         robust: true,
         with_mst: true,
         preconditioner: Preconditioner::Multigrid,
+        information: None,
     };
     let mut args = std::env::args().skip(1);
     while let Some(arg) = args.next() {
@@ -48,6 +55,13 @@ fn parse_args() -> Result<Config, String> {
             "--no-robust" => config.robust = false,
             "--no-mst" => config.with_mst = false,
             "--jacobi" => config.preconditioner = Preconditioner::Jacobi,
+            "--information" => {
+                let spread: f64 = value()?.parse().map_err(|_| "bad --information")?;
+                if !(spread >= 1.0) {
+                    return Err("--information needs a spread >= 1".into());
+                }
+                config.information = Some(spread);
+            }
             _ => return Err(format!("unknown argument {arg}")),
         }
     }
@@ -84,8 +98,16 @@ fn main() {
         }
     };
     println!(
-        "# motion averaging, topology {}, noise {} m / {} deg per axis, robust {}, preconditioner {:?}",
-        config.topology, config.noise_m, config.noise_deg, config.robust, config.preconditioner
+        "# motion averaging, topology {}, noise {} m / {} deg per axis, robust {}, preconditioner {:?}, weights {}",
+        config.topology,
+        config.noise_m,
+        config.noise_deg,
+        config.robust,
+        config.preconditioner,
+        match config.information {
+            Some(spread) => format!("information (noise spread {spread}x)"),
+            None => "paper".into(),
+        }
     );
     println!(
         "| nodes | edges | build s | setup s | rotation s | translation s | total s | peak RSS MB | rot err deg (rms) | trans err m (rms) | MST trans err m (rms) | rot steps / CG | trans CG |"
@@ -100,13 +122,16 @@ fn main() {
             _ => Topology::Random { edges_per_node: 6 },
         };
         let built = Instant::now();
-        let synthetic = generate(&SyntheticSpec::noisy(
-            n,
-            topology,
-            42,
-            config.noise_deg,
-            config.noise_m,
-        ));
+        let mut synthetic = generate(&SyntheticSpec {
+            noise_scale_spread: config.information.unwrap_or(1.0),
+            ..SyntheticSpec::noisy(n, topology, 42, config.noise_deg, config.noise_m)
+        });
+        if config.information.is_some() {
+            if let Err(e) = information_weights(&mut synthetic.graph.edges) {
+                eprintln!("bench_averaging: {e}");
+                std::process::exit(1);
+            }
+        }
         let build_s = built.elapsed().as_secs_f64();
         let options = AveragingOptions {
             robust: config.robust,
