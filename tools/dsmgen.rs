@@ -436,12 +436,16 @@ fn cut(a: CutArgs) -> Result<(), SynthError> {
     };
     let report = cut_collection(&a.source, &params, &a.out, a.cog_tile)?;
     let truth = &report.truth;
+    let [col, row] = truth
+        .cut
+        .as_ref()
+        .and_then(|c| c.params.origin_px)
+        .unwrap_or_default();
     println!(
-        "cut {} into {} tiles of {} px (tile_00 at source pixel {:?}), truth.json in {}",
+        "cut {} into {} tiles of {} px (tile_00 at source pixel col {col}, row {row}), truth.json in {}",
         a.source.display(),
         truth.tiles.len(),
         a.size,
-        truth.cut.as_ref().and_then(|c| c.params.origin_px),
         a.out.display()
     );
     println!(
