@@ -159,3 +159,38 @@ fn ttp_grid_cut_is_recovered_aligned_and_fused() {
     );
     assert!(lr < nlr, "{lr} vs {nlr}");
 }
+
+#[test]
+fn cut_refuses_a_geographic_source_and_a_window_without_land() {
+    let dir = tempfile::tempdir().unwrap();
+    let srtm =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/real/demcompare_srtm/srtm_ref.tif");
+    let source = fixtures().join("ttp_dsm_source.tif");
+    let cases: [(&Path, &[&str], &str); 2] = [
+        (&srtm, &[], "geographic"),
+        // the top-right corner of the ttp raster is lake: no valid height
+        (
+            &source,
+            &["--count", "1", "--size", "64", "--origin-px", "440", "0"],
+            "no valid height",
+        ),
+    ];
+    for (src, extra, needle) in cases {
+        let out_dir = dir.path().join("out");
+        let out = Command::new(env!("CARGO_BIN_EXE_dsmgen"))
+            .arg("cut")
+            .arg(src)
+            .args(extra)
+            .arg("--out")
+            .arg(&out_dir)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{err}");
+        assert!(
+            err.contains(needle) && err.contains(&src.display().to_string()),
+            "{err}"
+        );
+        assert!(!out_dir.exists());
+    }
+}

@@ -38,6 +38,9 @@ pub enum SynthError {
         path: PathBuf,
         source: std::io::Error,
     },
+    /// A source DSM that cannot be cut as asked (the message names the file).
+    #[error("{0}")]
+    BadSource(String),
     #[error("{path}: not a valid truth.json: {message}")]
     BadTruth { path: PathBuf, message: String },
     #[error(transparent)]
@@ -51,7 +54,9 @@ impl SynthError {
     /// A problem with the parameters or an input file (exit code 2).
     pub fn is_bad_input(&self) -> bool {
         match self {
-            SynthError::BadParams(_) | SynthError::BadTruth { .. } => true,
+            SynthError::BadParams(_) | SynthError::BadSource(_) | SynthError::BadTruth { .. } => {
+                true
+            }
             SynthError::Read(e) => e.is_bad_input(),
             _ => false,
         }

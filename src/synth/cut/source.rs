@@ -48,7 +48,7 @@ pub fn scan_source(
         }
     }
     if n == 0 {
-        return Err(SynthError::BadParams(format!(
+        return Err(SynthError::BadSource(format!(
             "{}: no valid height in the source",
             reader.info().path.display()
         )));
