@@ -63,14 +63,8 @@ fn truth_poses(truth: &Path, out: &Path, edit: impl FnOnce(&mut Vec<Value>)) {
 /// The noise-free true surface over the tiles of `truth`.
 fn truth_grid(truth: &Path, out: &Path) {
     let t = Truth::load(truth).unwrap();
-    write_truth_grid(
-        &t.surface,
-        t.bbox(),
-        t.gsd,
-        &epsg_crs(t.generation.epsg),
-        out,
-    )
-    .unwrap();
+    let (generation, surface) = t.synthetic().expect("a synthetic tile set");
+    write_truth_grid(surface, t.bbox(), t.gsd, &epsg_crs(generation.epsg), out).unwrap();
 }
 
 fn read(path: &Path) -> (dsmstream::geotiff::reader::GeoTiffInfo, Vec<f32>) {

@@ -14,6 +14,7 @@ use dsmstream::fuse::PoseSet;
 use dsmstream::poses::{inverse_rigid, rigid, to_local, to_world, PosesFile};
 use dsmstream::store::Store;
 use dsmstream::synth::output::{epsg_crs, write_truth_grid, Truth};
+use dsmstream::InputError;
 use nalgebra::{Matrix3, Matrix4, Vector3};
 
 #[derive(clap::Args, Debug)]
@@ -86,11 +87,18 @@ fn fuse_and_eval(
     rows: &[(&str, PosesFile)],
 ) -> anyhow::Result<()> {
     let truth_tif = work.join("truth.tif");
+    let Some((generation, surface)) = truth.synthetic() else {
+        return Err(InputError::new(format!(
+            "{}: truth.json has no synthetic surface (made by dsmgen cut?): the demo needs dsmgen tiles",
+            args.data.display()
+        ))
+        .into());
+    };
     write_truth_grid(
-        &truth.surface,
+        surface,
         truth.bbox(),
         truth.gsd,
-        &epsg_crs(truth.generation.epsg),
+        &epsg_crs(generation.epsg),
         &truth_tif,
     )
     .with_context(|| format!("writing {}", truth_tif.display()))?;

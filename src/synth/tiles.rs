@@ -219,10 +219,21 @@ pub fn written_height(
     xw: f64,
     yw: f64,
 ) -> f64 {
-    let mut surface = |x: f64, y: f64| match epoch {
+    solve_written_height(m, xw, yw, |x, y| match epoch {
         Some(e) => sampler.height_in_epoch(x, y, e),
         None => sampler.true_height(x, y),
-    };
+    })
+}
+
+/// The fixed-point solve of [`written_height`] over any true surface
+/// `surface(x, y)` (NaN = no data): the h' with M (x', y', h') on the surface,
+/// or NaN when the iteration steps onto no data.
+pub fn solve_written_height(
+    m: &Matrix4<f64>,
+    xw: f64,
+    yw: f64,
+    mut surface: impl FnMut(f64, f64) -> f64,
+) -> f64 {
     let mut h = surface(xw, yw);
     if m.is_identity(0.0) {
         return h;
