@@ -141,7 +141,7 @@ fn fuse_and_eval(
     )?;
     let cache = ChunkCache::new(64 << 20);
     let config = EvalConfig {
-        threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+        threads: super::threads_or_all(None),
         ..Default::default()
     };
     println!(

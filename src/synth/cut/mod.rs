@@ -31,12 +31,12 @@ pub use source::scan_source;
 use source::{render_cut_window, SourceRows};
 
 use super::output::{write_truth, Truth, TruthTile};
-use super::tiles::{rigid_about, Layout, TileSpec};
+use super::tiles::{draw_perturbation, rigid_about, Layout, TileSpec};
 use super::SynthError;
 use crate::geotiff::reader::{GeoTiffInfo, GeoTiffReader};
 use crate::geotiff::writer::{CogOptions, CogWriter};
 use crate::raster::GeoTransform;
-use crate::rng::{derive_seed, SplitMix64};
+use crate::rng::derive_seed;
 
 /// How to cut: layout, tile size, overlap and the perturbation limits.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -170,18 +170,11 @@ pub fn plan_cut(
         .into_iter()
         .enumerate()
         .map(|(index, window_px)| {
-            let mut rng = SplitMix64::new(derive_seed(p.seed, 3000 + index as u64));
-            let mut sym = |max: f64| rng.range(-max, max);
-            let mut shift_m = [
-                sym(p.max_shift_xy_m),
-                sym(p.max_shift_xy_m),
-                sym(p.max_shift_z_m),
-            ];
-            let mut rot_deg = [sym(p.max_rot_deg), sym(p.max_rot_deg), sym(p.max_rot_deg)];
-            if p.anchor_first && index == 0 {
-                shift_m = [0.0; 3];
-                rot_deg = [0.0; 3];
-            }
+            let (shift_m, rot_deg) = draw_perturbation(
+                derive_seed(p.seed, 3000 + index as u64),
+                [p.max_shift_xy_m, p.max_shift_z_m, p.max_rot_deg],
+                p.anchor_first && index == 0,
+            );
             let (wx, wy) = source_gt.pixel_to_world(window_px[0] as f64, window_px[1] as f64);
             let (ox, oy) = (wx - shift_m[0], wy - shift_m[1]);
             let centre = Vector3::new(ox + side * gsd_x / 2.0, oy - side * gsd_y / 2.0, pivot_z_m);
