@@ -157,7 +157,7 @@ impl Journal {
         journal.writer.write_all(text.as_bytes()).map_err(io)?;
         journal.flush()?;
         let mut records: Vec<EdgeRecord> = records.into_values().collect();
-        records.sort_by(|a, b| a.key().cmp(&b.key()));
+        records.sort_by_key(EdgeRecord::key);
         Ok((journal, records))
     }
 

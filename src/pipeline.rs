@@ -91,7 +91,7 @@ pub fn run(
         journal.flush()
     });
     result?;
-    records.sort_by(|a, b| a.key().cmp(&b.key()));
+    records.sort_by_key(EdgeRecord::key);
     Ok(records)
 }
 

@@ -117,7 +117,7 @@ fn generated(dir: &Path, layout_args: &[&str]) -> (PathBuf, dsmstream::synth::ou
         String::from_utf8_lossy(&gen.stderr)
     );
     let store = dir.join("c.zarr");
-    ingest(&[tiles.clone()], &store);
+    ingest(std::slice::from_ref(&tiles), &store);
     let truth = dsmstream::synth::output::Truth::load(&tiles.join("truth.json")).unwrap();
     (store, truth)
 }

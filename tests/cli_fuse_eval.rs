@@ -63,14 +63,8 @@ fn truth_poses(truth: &Path, out: &Path, edit: impl FnOnce(&mut Vec<Value>)) {
 /// The noise-free true surface over the tiles of `truth`.
 fn truth_grid(truth: &Path, out: &Path) {
     let t = Truth::load(truth).unwrap();
-    write_truth_grid(
-        &t.surface,
-        t.bbox(),
-        t.gsd,
-        &epsg_crs(t.generation.epsg),
-        out,
-    )
-    .unwrap();
+    let (generation, surface) = t.synthetic().expect("a synthetic tile set");
+    write_truth_grid(surface, t.bbox(), t.gsd, &epsg_crs(generation.epsg), out).unwrap();
 }
 
 fn read(path: &Path) -> (dsmstream::geotiff::reader::GeoTiffInfo, Vec<f32>) {
@@ -375,4 +369,41 @@ fn codem_dsm_against_its_lidar() {
         .as_str()
         .unwrap()
         .contains("EPSG:32616"));
+}
+
+/// `fuse --method spread` maps where the DSMs disagree: with the true poses
+/// the overlaps agree far better than uncorrected.
+#[test]
+fn spread_map_shrinks_with_the_true_poses() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = ingest(&fixtures().join("synth/chain4"), dir.path());
+    let poses = dir.path().join("truth_poses.json");
+    truth_poses(&fixtures().join("synth/chain4/truth.json"), &poses, |_| {});
+    let median_spread = |with_poses: bool| {
+        let out = dir.path().join(format!("spread_{with_poses}.tif"));
+        let mut args: Vec<&dyn AsRef<std::ffi::OsStr>> = vec![
+            &"fuse",
+            &store,
+            &"--method",
+            &"spread",
+            &"--out",
+            &out,
+            &"-q",
+        ];
+        if with_poses {
+            args.extend([&"--poses" as &dyn AsRef<std::ffi::OsStr>, &poses]);
+        }
+        ok(run(&args));
+        let (_, data) = read(&out);
+        let mut v: Vec<f32> = data.into_iter().filter(|x| !x.is_nan()).collect();
+        assert!(v.len() > 10_000, "{} overlap pixels", v.len());
+        assert!(v.iter().all(|&x| x >= 0.0));
+        let mid = v.len() / 2;
+        *v.select_nth_unstable_by(mid, f32::total_cmp).1
+    };
+    let (raw, aligned) = (median_spread(false), median_spread(true));
+    assert!(
+        aligned < 0.5 * raw,
+        "median spread {aligned} m vs raw {raw} m"
+    );
 }

@@ -57,7 +57,7 @@ fn parse_args() -> Result<Config, String> {
             "--jacobi" => config.preconditioner = Preconditioner::Jacobi,
             "--information" => {
                 let spread: f64 = value()?.parse().map_err(|_| "bad --information")?;
-                if !(spread >= 1.0) {
+                if spread.is_nan() || spread < 1.0 {
                     return Err("--information needs a spread >= 1".into());
                 }
                 config.information = Some(spread);

@@ -21,6 +21,8 @@ def main():
     truth_doc = json.load(open(sys.argv[2]))
     tru = {t["id"]: np.array(t["matrix_world"], dtype=float) for t in truth_doc["tiles"]}
     ids = sorted(tru)
+    # test points at the pivot height (dsmgen cut records it; dsmgen tiles: 200 m)
+    pivot_z = truth_doc.get("pivot_z_m", 200.0)
     worst_m, worst_deg, rows = 0.0, 0.0, []
     for a in range(len(ids)):
         for b in range(a + 1, len(ids)):
@@ -30,7 +32,7 @@ def main():
             d = np.linalg.inv(rel_t) @ rel_e
             gt = truth_doc["tiles"][b]["geotransform"]
             w = truth_doc["tiles"][b]["width"]
-            c = np.array([gt[0] + gt[1] * w / 2, gt[3] + gt[5] * w / 2, 200.0, 1.0])
+            c = np.array([gt[0] + gt[1] * w / 2, gt[3] + gt[5] * w / 2, pivot_z, 1.0])
             disp = np.linalg.norm((d @ c - c)[:3])
             ang = np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1, 1)))
             rows.append((i, j, disp, ang))

@@ -3,6 +3,7 @@
 //! - `dsmgen tiles`: overlapping perturbed tiles (chain or grid) + truth.json
 //! - `dsmgen big`: one large unperturbed DSM written tile by tile (ingest benchmark)
 //! - `dsmgen truth-grid`: the noise-free true surface over a tile set or bbox
+//! - `dsmgen cut`: overlapping perturbed tiles cut from a real DSM + truth.json
 //!
 //! Same seed, same bytes. Exit codes: 0 ok, 1 failure, 2 bad parameters.
 
@@ -11,8 +12,9 @@ use std::path::PathBuf;
 use clap::{Parser, Subcommand, ValueEnum};
 use dsmstream::raster::GeoTransform;
 use dsmstream::synth::{
-    epsg_crs, render_window, tiles::rigid_about, write_raster, write_tile_set, write_truth_grid,
-    Layout, PixelEffects, Surface, SurfaceParams, SynthError, TileSetParams, TileSpec, Truth,
+    cut_collection, epsg_crs, render_window, tiles::rigid_about, write_raster, write_tile_set,
+    write_truth_grid, CutParams, Layout, PixelEffects, Surface, SurfaceParams, SynthError,
+    TileSetParams, TileSpec, Truth,
 };
 
 #[derive(Parser)]
@@ -36,6 +38,8 @@ enum Command {
     Big(BigArgs),
     /// The noise-free, change-free true surface as a COG.
     TruthGrid(TruthGridArgs),
+    /// Overlapping tiles cut from a real DSM, each moved by a known rigid motion, and truth.json.
+    Cut(CutArgs),
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -168,6 +172,51 @@ struct TruthGridArgs {
     out: PathBuf,
 }
 
+#[derive(clap::Args)]
+struct CutArgs {
+    /// The real DSM to cut (GeoTIFF, north-up, projected CRS).
+    source: PathBuf,
+    #[arg(long, value_enum, default_value = "chain")]
+    layout: LayoutArg,
+    /// Number of tiles of a chain.
+    #[arg(long, default_value_t = 4)]
+    count: u32,
+    /// Grid rows.
+    #[arg(long, default_value_t = 2)]
+    rows: u32,
+    /// Grid columns.
+    #[arg(long, default_value_t = 2)]
+    cols: u32,
+    /// Tile edge in source pixels.
+    #[arg(long, default_value_t = 256)]
+    size: u32,
+    /// Fraction of a tile shared with its neighbour.
+    #[arg(long, default_value_t = 0.6)]
+    overlap: f64,
+    /// Top-left source pixel of tile_00 (col row); default: the layout centred on the source.
+    #[arg(long, num_args = 2, allow_negative_numbers = true, value_names = ["COL", "ROW"])]
+    origin_px: Option<Vec<i64>>,
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Maximum horizontal shift per axis, metres (exact: the geotransform moves).
+    #[arg(long, default_value_t = 3.0)]
+    max_shift_m: f64,
+    /// Maximum vertical shift, metres.
+    #[arg(long, default_value_t = 2.0)]
+    max_shift_z_m: f64,
+    /// Maximum rotation per axis (roll, pitch, yaw), degrees; resampled bilinearly.
+    #[arg(long, default_value_t = 0.02)]
+    max_rot_deg: f64,
+    /// Leave tile_00 unperturbed (the truth's gauge: align --anchor tile_00).
+    #[arg(long)]
+    anchor_first: bool,
+    /// COG tile size inside each file.
+    #[arg(long, default_value_t = 256)]
+    cog_tile: u32,
+    #[arg(long)]
+    out: PathBuf,
+}
+
 fn main() {
     let cli = Cli::parse();
     let level = if cli.verbose { "info" } else { "warn" };
@@ -182,14 +231,11 @@ fn main() {
         Command::Tiles(a) => tiles(a),
         Command::Big(a) => big(a),
         Command::TruthGrid(a) => truth_grid(a),
+        Command::Cut(a) => cut(a),
     };
     if let Err(err) = result {
         eprintln!("error: {err}");
-        let code = match err {
-            SynthError::BadParams(_) | SynthError::BadTruth { .. } => 2,
-            _ => 1,
-        };
-        std::process::exit(code);
+        std::process::exit(if err.is_bad_input() { 2 } else { 1 });
     }
 }
 
@@ -339,7 +385,13 @@ fn truth_grid(a: TruthGridArgs) -> Result<(), SynthError> {
         (Some(path), _, _) => {
             let truth = Truth::load(path)?;
             let gsd = a.gsd.unwrap_or(truth.gsd);
-            (truth.surface, truth.bbox(), gsd, truth.generation.epsg)
+            let Some((generation, surface)) = truth.synthetic() else {
+                return Err(SynthError::BadTruth {
+                    path: path.clone(),
+                    message: "no synthetic surface (a cut: its source DSM is the truth)".into(),
+                });
+            };
+            (*surface, truth.bbox(), gsd, generation.epsg)
         }
         (None, Some(b), Some(seed)) => {
             let surface = SurfaceParams {
@@ -361,5 +413,53 @@ fn truth_grid(a: TruthGridArgs) -> Result<(), SynthError> {
     };
     write_truth_grid(&surface, bbox, gsd, &epsg_crs(epsg), &a.out)?;
     println!("wrote {} over {bbox:?} at {gsd} m", a.out.display());
+    Ok(())
+}
+
+fn cut(a: CutArgs) -> Result<(), SynthError> {
+    let (layout, rows, cols) = match a.layout {
+        LayoutArg::Chain => (Layout::Chain, 1, a.count),
+        LayoutArg::Grid => (Layout::Grid, a.rows, a.cols),
+    };
+    let params = CutParams {
+        layout,
+        rows,
+        cols,
+        size_px: a.size,
+        overlap: a.overlap,
+        origin_px: a.origin_px.as_deref().map(|o| [o[0], o[1]]),
+        seed: a.seed,
+        max_shift_xy_m: a.max_shift_m,
+        max_shift_z_m: a.max_shift_z_m,
+        max_rot_deg: a.max_rot_deg,
+        anchor_first: a.anchor_first,
+    };
+    let report = cut_collection(&a.source, &params, &a.out, a.cog_tile)?;
+    let truth = &report.truth;
+    let [col, row] = truth
+        .cut
+        .as_ref()
+        .and_then(|c| c.params.origin_px)
+        .unwrap_or_default();
+    println!(
+        "cut {} into {} tiles of {} px (tile_00 at source pixel col {col}, row {row}), truth.json in {}",
+        a.source.display(),
+        truth.tiles.len(),
+        a.size,
+        a.out.display()
+    );
+    println!(
+        "{:<8} {:>8} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9}",
+        "tile", "valid %", "dx m", "dy m", "dz m", "roll deg", "pitch deg", "yaw deg"
+    );
+    for (t, valid) in truth.tiles.iter().zip(&report.valid_fraction) {
+        let [dx, dy, dz] = t.shift_m;
+        let [rx, ry, rz] = t.rot_deg;
+        println!(
+            "{:<8} {:>8.1} {dx:>9.3} {dy:>9.3} {dz:>9.3} {rx:>9.4} {ry:>9.4} {rz:>9.4}",
+            t.id,
+            valid * 100.0
+        );
+    }
     Ok(())
 }

@@ -1,8 +1,11 @@
 //! `dsmstream demo`: ingest → align (motion averaging and the greedy MST
-//! baseline) → fuse → eval on a bundled generated collection with known truth,
-//! then prints how far each result is from the truth, side by side: relative
-//! poses, pairwise agreement, and the fused surface against the true surface
-//! (after fixing the gauge, which no registration can observe, to the truth).
+//! baseline) → fuse → eval on bundled collections with known truth, then prints
+//! how far each result is from the truth, side by side: relative poses,
+//! pairwise agreement, and the fused surface against the true surface (after
+//! fixing the gauge, which no registration can observe, to the truth).
+//! By default two collections: the generated city chain in
+//! fixtures/synth/chain4, and six tiles cut from the real ttp2015 lidar DSM
+//! with known shifts and rotations (the source DSM is then the truth).
 
 use std::path::{Path, PathBuf};
 
@@ -13,26 +16,63 @@ use dsmstream::eval::{evaluate, EvalConfig};
 use dsmstream::fuse::PoseSet;
 use dsmstream::poses::{inverse_rigid, rigid, to_local, to_world, PosesFile};
 use dsmstream::store::Store;
+use dsmstream::synth::cut::{cut_collection, CutParams};
 use dsmstream::synth::output::{epsg_crs, write_truth_grid, Truth};
+use dsmstream::synth::tiles::Layout;
+use dsmstream::InputError;
 use nalgebra::{Matrix3, Matrix4, Vector3};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// Folder of GeoTIFF tiles with a truth.json (made by dsmgen).
-    #[arg(long, default_value = "fixtures/synth/chain4")]
-    pub data: PathBuf,
+    /// Folder of GeoTIFF tiles with a truth.json (made by `dsmgen tiles` or
+    /// `dsmgen cut`); default: fixtures/synth/chain4, then a cut of
+    /// fixtures/real/ttp2015/ttp_dsm_source.tif.
+    #[arg(long)]
+    pub data: Option<PathBuf>,
     /// Working folder (default: a new folder under the system temp dir).
     #[arg(long)]
     pub work: Option<PathBuf>,
 }
+
+const SYNTH_CHAIN: &str = "fixtures/synth/chain4";
+const TTP_SOURCE: &str = "fixtures/real/ttp2015/ttp_dsm_source.tif";
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let work = args.work.clone().unwrap_or_else(|| {
         std::env::temp_dir().join(format!("dsmstream-demo-{}", std::process::id()))
     });
     std::fs::create_dir_all(&work).with_context(|| format!("creating {}", work.display()))?;
+    if let Some(data) = &args.data {
+        return run_collection(data, &work);
+    }
+    println!("=== 1. generated city tiles ({SYNTH_CHAIN})");
+    run_collection(Path::new(SYNTH_CHAIN), &work.join("synth"))?;
+    let real = work.join("ttp2015");
+    let tiles = real.join("tiles");
+    println!(
+        "\n=== 2. real terrain: {TTP_SOURCE} cut into a 3 x 2 grid of 300 px tiles, shifted <= 3 m, rotated <= 0.02 deg"
+    );
+    let params = CutParams {
+        layout: Layout::Grid,
+        rows: 3,
+        cols: 2,
+        size_px: 300,
+        overlap: 0.6,
+        anchor_first: true,
+        ..CutParams::default()
+    };
+    cut_collection(Path::new(TTP_SOURCE), &params, &tiles, 256)
+        .map_err(|e| anyhow::Error::new(InputError::new(e.to_string())))?;
+    run_collection(&tiles, &real)?;
+    println!("\nfiles in {}", work.display());
+    Ok(())
+}
+
+/// ingest → align full/mst → fuse → eval of one folder with a truth.json.
+fn run_collection(data_dir: &Path, work: &Path) -> anyhow::Result<()> {
+    std::fs::create_dir_all(work).with_context(|| format!("creating {}", work.display()))?;
     let store = work.join("collection.zarr");
-    let data = args.data.display().to_string();
+    let data = data_dir.display().to_string();
     let store_s = store.display().to_string();
     super::run(
         super::Cli::try_parse_from(["dsmstream", "ingest", &data, "--store", &store_s])?.command,
@@ -56,7 +96,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         )?;
         rows.push((graph, PosesFile::read(&out)?));
     }
-    let truth_path = args.data.join("truth.json");
+    let truth_path = data_dir.join("truth.json");
     let truth =
         Truth::load(&truth_path).with_context(|| format!("reading {}", truth_path.display()))?;
     println!(
@@ -71,29 +111,42 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let (mean, worst, worst_deg) = (e.mean_m, e.worst_m, e.worst_deg);
         println!("{graph:<8} {mean:>14.4} {worst:>14.4} {worst_deg:>16.5}");
     }
-    fuse_and_eval(&args, &work, &store, &truth, &rows)?;
-    println!("\nfiles in {}", work.display());
-    Ok(())
+    fuse_and_eval(data_dir, work, &store, &truth, &rows)
 }
 
 /// Fuse the motion-averaging result, evaluate it against the true surface with
 /// plots, and print none / mst / full side by side.
 fn fuse_and_eval(
-    args: &Args,
+    data_dir: &Path,
     work: &Path,
     store_path: &Path,
     truth: &Truth,
     rows: &[(&str, PosesFile)],
 ) -> anyhow::Result<()> {
-    let truth_tif = work.join("truth.tif");
-    write_truth_grid(
-        &truth.surface,
-        truth.bbox(),
-        truth.gsd,
-        &epsg_crs(truth.generation.epsg),
-        &truth_tif,
-    )
-    .with_context(|| format!("writing {}", truth_tif.display()))?;
+    // The true surface: rendered from the generator's parameters, or the
+    // source DSM a cut was taken from.
+    let truth_tif = match (truth.synthetic(), &truth.cut) {
+        (Some((generation, surface)), _) => {
+            let path = work.join("truth.tif");
+            write_truth_grid(
+                surface,
+                truth.bbox(),
+                truth.gsd,
+                &epsg_crs(generation.epsg),
+                &path,
+            )
+            .with_context(|| format!("writing {}", path.display()))?;
+            path
+        }
+        (None, Some(cut)) => cut.source.clone(),
+        (None, None) => {
+            return Err(InputError::new(format!(
+                "{}: truth.json names neither a generated surface nor a cut source",
+                data_dir.display()
+            ))
+            .into())
+        }
+    };
     let store = Store::open(store_path)?;
     let mut gauged = Vec::new();
     for (graph, poses) in rows {
@@ -116,7 +169,10 @@ fn fuse_and_eval(
         ])?
         .command,
     )?;
-    println!("\n== eval --poses poses_full_truth_gauge.json --reference truth.tif --plots plots");
+    println!(
+        "\n== eval --poses poses_full_truth_gauge.json --reference {} --plots plots",
+        truth_tif.display()
+    );
     super::run(
         super::Cli::try_parse_from([
             "dsmstream",
@@ -133,12 +189,12 @@ fn fuse_and_eval(
     )?;
     let cache = ChunkCache::new(64 << 20);
     let config = EvalConfig {
-        threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+        threads: super::threads_or_all(None),
         ..Default::default()
     };
     println!(
         "\nside by side ({}; tau = {} m; fused = median of corrected DSMs, gauge fixed to the truth):",
-        args.data.display(),
+        data_dir.display(),
         config.tau_m
     );
     println!(
@@ -162,7 +218,7 @@ fn fuse_and_eval(
             p.matrix_world = Matrix4::from_fn(|r, c| t.matrix_world[r][c]);
         }
     }
-    let truth_json = args.data.join("truth.json");
+    let truth_json = data_dir.join("truth.json");
     sets.push((
         "truth",
         Some(PoseSet::from_parsed(&store, &truth_json, truth_file)?),

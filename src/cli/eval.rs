@@ -51,10 +51,7 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    super::fuse::release_large_buffers_on_free();
-    let threads = args
-        .threads
-        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+    let threads = super::threads_or_all(args.threads);
     if threads == 0 || args.max_samples == 0 {
         return Err(InputError::new("--threads and --max-samples must be at least 1").into());
     }

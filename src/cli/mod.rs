@@ -83,3 +83,8 @@ pub fn init_logging(verbose: u8, quiet: bool) {
         .with(indicatif_layer)
         .init();
 }
+
+/// `--threads`, or every core the process may use.
+pub(crate) fn threads_or_all(threads: Option<usize>) -> usize {
+    threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
+}

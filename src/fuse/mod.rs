@@ -64,6 +64,9 @@ pub enum FuseMethod {
     Max,
     /// Number of DSMs with a valid height (0 where none).
     Count,
+    /// Largest minus smallest corrected height where two or more DSMs overlap
+    /// (no-data elsewhere): where the registered DSMs still disagree.
+    Spread,
 }
 
 /// What to fuse and how.

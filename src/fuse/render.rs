@@ -144,7 +144,7 @@ impl FuseMethod {
         if let FuseMethod::Count = self {
             return values.len() as f32;
         }
-        if values.is_empty() {
+        if values.is_empty() || (self == FuseMethod::Spread && values.len() < 2) {
             return f32::NAN;
         }
         match self {
@@ -154,6 +154,14 @@ impl FuseMethod {
             }
             FuseMethod::Min => values.iter().copied().fold(f32::INFINITY, f32::min),
             FuseMethod::Max => values.iter().copied().fold(f32::NEG_INFINITY, f32::max),
+            FuseMethod::Spread => {
+                let (lo, hi) = values
+                    .iter()
+                    .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| {
+                        (lo.min(v), hi.max(v))
+                    });
+                hi - lo
+            }
             FuseMethod::Count => unreachable!(),
         }
     }
@@ -186,5 +194,7 @@ mod tests {
         assert_eq!(run(FuseMethod::Count, &v), 4.0);
         assert!(run(FuseMethod::Median, &[]).is_nan());
         assert_eq!(run(FuseMethod::Count, &[]), 0.0);
+        assert_eq!(run(FuseMethod::Spread, &v), 9.0);
+        assert!(run(FuseMethod::Spread, &v[..1]).is_nan());
     }
 }

@@ -185,7 +185,7 @@ pub fn crs_from_tags(
         wkt,
         geokeys: directory.to_vec(),
         geo_doubles: doubles.to_vec(),
-        geo_ascii: ascii.map(|s| s.to_string()),
+        geo_ascii: ascii.map(|s| s.trim_end_matches('\0').to_string()),
     })
 }
 

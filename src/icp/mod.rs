@@ -281,19 +281,23 @@ fn run_level<R: Pyramid, M: Pyramid>(
     let mut sigma = FitSigma::default();
     let mut iterations = 0;
     let min_inliers = 30.max(samples.points.len() / 100);
-    for _ in 0..config.max_iter {
-        iterations += 1;
+    let match_at = |t: &Isometry3<f64>, nn: &mut NnStats| {
         let assoc = associate(
             reference,
             level,
             &ref_frame,
             &samples.points,
-            &t_ref_moving,
+            t,
             tau_m,
             config.metric,
         )
         .map_err(read)?;
-        add_stats(&mut nn, &assoc.nn);
+        add_stats(nn, &assoc.nn);
+        Ok::<_, IcpError>(assoc)
+    };
+    for _ in 0..config.max_iter {
+        iterations += 1;
+        let assoc = match_at(&t_ref_moving, &mut nn)?;
         if assoc.corrs.len() < min_inliers {
             status = IcpStatus::TooFewInliers;
             break;
@@ -338,17 +342,7 @@ fn run_level<R: Pyramid, M: Pyramid>(
             break;
         }
     }
-    let final_association = associate(
-        reference,
-        level,
-        &ref_frame,
-        &samples.points,
-        &t_ref_moving,
-        tau_m,
-        config.metric,
-    )
-    .map_err(read)?;
-    add_stats(&mut nn, &final_association.nn);
+    let final_association = match_at(&t_ref_moving, &mut nn)?;
     if status != IcpStatus::TooFewInliers && final_association.corrs.len() < min_inliers {
         status = IcpStatus::TooFewInliers;
     }

@@ -2,12 +2,15 @@
 //! [`Surface`] evaluated point by point (terrain, buildings, trees, lakes,
 //! changed buildings), a tile cutter that perturbs every tile by a known rigid
 //! motion and adds noise, outliers and voids, and the writers of tile sets,
-//! `truth.json` and truth grids. `tools/dsmgen.rs` is the command line over it.
+//! `truth.json` and truth grids; and `cut`, the same known-answer collections
+//! cut from a real DSM. `tools/dsmgen.rs` is the command line over it.
 //!
 //! Parts: `crate::rng` (SplitMix64 and coordinate hashes) → `objects` (per-cell
 //! buildings and trees) → `surface` (the height function) → `tiles` (layout,
-//! perturbation, rendering) → `output` (COGs and truth.json).
+//! perturbation, rendering) → `output` (COGs and truth.json); `cut` (a real
+//! GeoTIFF through the same frames into COGs and truth.json).
 
+pub mod cut;
 pub mod objects;
 pub mod output;
 pub mod surface;
@@ -15,11 +18,14 @@ pub mod tiles;
 
 use std::path::PathBuf;
 
-pub use output::{epsg_crs, write_raster, write_tile_set, write_truth_grid, Truth, TruthTile};
+pub use cut::{cut_collection, CutParams, CutRecord, CutReport};
+pub use output::{
+    epsg_crs, write_raster, write_tile_set, write_truth, write_truth_grid, Truth, TruthTile,
+};
 pub use surface::{Sampler, Surface, SurfaceParams};
 pub use tiles::{
-    plan_tiles, render_window, rigid_about, written_height, Layout, PixelEffects, TileSetParams,
-    TileSpec,
+    plan_tiles, render_window, rigid_about, solve_written_height, written_height, Layout,
+    PixelEffects, TileSetParams, TileSpec,
 };
 
 /// Errors of the generator; each displays as one line.
@@ -32,10 +38,29 @@ pub enum SynthError {
         path: PathBuf,
         source: std::io::Error,
     },
+    /// A source DSM that cannot be cut as asked (the message names the file).
+    #[error("{0}")]
+    BadSource(String),
     #[error("{path}: not a valid truth.json: {message}")]
     BadTruth { path: PathBuf, message: String },
     #[error(transparent)]
     Write(#[from] crate::geotiff::writer::GeoTiffWriteError),
+    /// The source DSM of a cut could not be read.
+    #[error(transparent)]
+    Read(#[from] crate::geotiff::reader::GeoTiffError),
+}
+
+impl SynthError {
+    /// A problem with the parameters or an input file (exit code 2).
+    pub fn is_bad_input(&self) -> bool {
+        match self {
+            SynthError::BadParams(_) | SynthError::BadSource(_) | SynthError::BadTruth { .. } => {
+                true
+            }
+            SynthError::Read(e) => e.is_bad_input(),
+            _ => false,
+        }
+    }
 }
 
 #[cfg(test)]

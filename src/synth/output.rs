@@ -13,15 +13,26 @@ use super::SynthError;
 use crate::geotiff::writer::{CogOptions, CogWriter};
 use crate::raster::{Crs, GeoTransform};
 
-/// The expected answer for a tile set (truth.json).
+/// The expected answer for a tile set (truth.json). A synthetic set (`dsmgen
+/// tiles`) carries `generation` and `surface`, from which the true surface can
+/// be rendered; a set cut from a real DSM (`dsmgen cut`) carries `cut` instead
+/// (the source DSM is then the true surface).
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Truth {
     pub crs: String,
     pub gsd: f64,
     pub layout: super::tiles::Layout,
     pub seed: u64,
-    pub generation: TileSetParams,
-    pub surface: SurfaceParams,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub generation: Option<TileSetParams>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub surface: Option<SurfaceParams>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cut: Option<super::cut::CutRecord>,
+    /// Height of the rotation pivots, and of the test points of
+    /// [`Truth::pairwise_error`]; absent: 200 m (the synthetic base elevation).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pivot_z_m: Option<f64>,
     pub tiles: Vec<TruthTile>,
 }
 
@@ -40,6 +51,21 @@ pub struct TruthTile {
     pub rot_deg: [f64; 3],
 }
 
+impl TruthTile {
+    pub fn from_spec(s: &TileSpec) -> TruthTile {
+        TruthTile {
+            id: s.id.clone(),
+            file: format!("{}.tif", s.id),
+            matrix_world: std::array::from_fn(|r| std::array::from_fn(|c| s.m_world[(r, c)])),
+            width: s.width,
+            height: s.height,
+            geotransform: s.geotransform.0,
+            shift_m: s.shift_m,
+            rot_deg: s.rot_deg,
+        }
+    }
+}
+
 impl Truth {
     pub fn load(path: &Path) -> Result<Truth, SynthError> {
         let text = std::fs::read_to_string(path).map_err(|source| SynthError::Io {
@@ -50,6 +76,11 @@ impl Truth {
             path: path.to_path_buf(),
             message: e.to_string(),
         })
+    }
+
+    /// The synthetic generator's parameters; None for a set cut from a real DSM.
+    pub fn synthetic(&self) -> Option<(&TileSetParams, &SurfaceParams)> {
+        self.generation.as_ref().zip(self.surface.as_ref())
     }
 
     /// Union of the written tiles' footprints [min_x, min_y, max_x, max_y].
@@ -167,30 +198,25 @@ pub fn write_tile_set(
         gsd: params.gsd_m,
         layout: params.layout,
         seed: params.seed,
-        generation: params.clone(),
-        surface: *surface_params,
-        tiles: specs
-            .iter()
-            .map(|s| TruthTile {
-                id: s.id.clone(),
-                file: format!("{}.tif", s.id),
-                matrix_world: std::array::from_fn(|r| std::array::from_fn(|c| s.m_world[(r, c)])),
-                width: s.width,
-                height: s.height,
-                geotransform: s.geotransform.0,
-                shift_m: s.shift_m,
-                rot_deg: s.rot_deg,
-            })
-            .collect(),
+        generation: Some(params.clone()),
+        surface: Some(*surface_params),
+        cut: None,
+        pivot_z_m: None,
+        tiles: specs.iter().map(TruthTile::from_spec).collect(),
     };
-    let truth_path: PathBuf = out_dir.join("truth.json");
-    let text = serde_json::to_string_pretty(&truth).expect("truth serialises");
-    std::fs::write(&truth_path, text + "\n").map_err(|source| SynthError::Io {
-        path: truth_path,
-        source,
-    })?;
+    write_truth(&truth, out_dir)?;
     tracing::info!(tiles = specs.len(), dir = %out_dir.display(), "tile set written");
     Ok(truth)
+}
+
+/// Write `out_dir/truth.json` (pretty JSON) through a temporary name.
+pub fn write_truth(truth: &Truth, out_dir: &Path) -> Result<(), SynthError> {
+    let path: PathBuf = out_dir.join("truth.json");
+    let tmp = out_dir.join(".truth.json.tmp");
+    let text = serde_json::to_string_pretty(truth).expect("truth serialises") + "\n";
+    std::fs::write(&tmp, text)
+        .and_then(|()| std::fs::rename(&tmp, &path))
+        .map_err(|source| SynthError::Io { path, source })
 }
 
 /// The noise-free, change-free, unperturbed surface over `bbox` at `gsd_m`
@@ -224,7 +250,8 @@ pub fn write_truth_grid(
 }
 /// How far a set of poses is from the truth, up to the common gauge: over every
 /// pair of tiles, the disagreement of M_i^-1 M_j with the truth's, measured as
-/// the displacement of the second tile's centre (at 200 m height) and as an angle.
+/// the displacement of the second tile's centre (at the pivot height,
+/// `pivot_z_m`, else 200 m) and as an angle.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PairwiseError {
     pub mean_m: f64,
@@ -248,7 +275,7 @@ impl Truth {
                 let centre = Vector4::new(
                     g[0] + g[1] * tb.width as f64 / 2.0,
                     g[3] + g[5] * tb.height as f64 / 2.0,
-                    200.0,
+                    self.pivot_z_m.unwrap_or(200.0),
                     1.0,
                 );
                 let disp = (d * centre - centre).xyz().norm();

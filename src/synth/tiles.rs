@@ -171,18 +171,11 @@ pub fn plan_tiles(p: &TileSetParams, pivot_z_m: f64) -> Vec<TileSpec> {
                 p.origin_x_m + c as f64 * step_m,
                 p.origin_y_m - r as f64 * step_m,
             );
-            let mut rng = SplitMix64::new(derive_seed(p.seed, 1000 + index as u64));
-            let mut sym = |max: f64| rng.range(-max, max);
-            let mut shift_m = [
-                sym(p.max_shift_xy_m),
-                sym(p.max_shift_xy_m),
-                sym(p.max_shift_z_m),
-            ];
-            let mut rot_deg = [sym(p.max_rot_deg), sym(p.max_rot_deg), sym(p.max_rot_deg)];
-            if p.anchor_first && index == 0 {
-                shift_m = [0.0; 3];
-                rot_deg = [0.0; 3];
-            }
+            let (shift_m, rot_deg) = draw_perturbation(
+                derive_seed(p.seed, 1000 + index as u64),
+                [p.max_shift_xy_m, p.max_shift_z_m, p.max_rot_deg],
+                p.anchor_first && index == 0,
+            );
             let centre = Vector3::new(x0 + side_m / 2.0, y0 - side_m / 2.0, pivot_z_m);
             tiles.push(TileSpec {
                 id: format!("tile_{index:02}"),
@@ -198,6 +191,23 @@ pub fn plan_tiles(p: &TileSetParams, pivot_z_m: f64) -> Vec<TileSpec> {
         }
     }
     tiles
+}
+
+/// A tile's random rigid perturbation: shifts uniform in +-max_xy, +-max_z,
+/// rotations uniform in +-max_rot_deg per axis; none for an anchored tile.
+pub fn draw_perturbation(
+    seed: u64,
+    [max_xy_m, max_z_m, max_rot_deg]: [f64; 3],
+    anchored: bool,
+) -> ([f64; 3], [f64; 3]) {
+    if anchored {
+        return ([0.0; 3], [0.0; 3]);
+    }
+    let mut rng = SplitMix64::new(seed);
+    let mut sym = |max: f64| rng.range(-max, max);
+    let shift_m = [sym(max_xy_m), sym(max_xy_m), sym(max_z_m)];
+    let rot_deg = [sym(max_rot_deg), sym(max_rot_deg), sym(max_rot_deg)];
+    (shift_m, rot_deg)
 }
 
 /// T(c + shift) R T(-c) with R = Rz(yaw) Ry(pitch) Rx(roll), angles in degrees.
@@ -219,10 +229,21 @@ pub fn written_height(
     xw: f64,
     yw: f64,
 ) -> f64 {
-    let mut surface = |x: f64, y: f64| match epoch {
+    solve_written_height(m, xw, yw, |x, y| match epoch {
         Some(e) => sampler.height_in_epoch(x, y, e),
         None => sampler.true_height(x, y),
-    };
+    })
+}
+
+/// The fixed-point solve of [`written_height`] over any true surface
+/// `surface(x, y)` (NaN = no data): the h' with M (x', y', h') on the surface,
+/// or NaN when the iteration steps onto no data.
+pub fn solve_written_height(
+    m: &Matrix4<f64>,
+    xw: f64,
+    yw: f64,
+    mut surface: impl FnMut(f64, f64) -> f64,
+) -> f64 {
     let mut h = surface(xw, yw);
     if m.is_identity(0.0) {
         return h;

@@ -1,0 +1,61 @@
+#!/usr/bin/env python3
+"""Pairwise accuracy against known truth, per --samples setting.
+
+Generates tile pairs with `dsmgen tiles --count 2` (city terrain, 0.3 m noise,
+spikes, voids, changed buildings), ingests them, runs `dsmstream pair` forward
+and inverse at each sample count, and prints a table: worst displacement at the
+overlap corners, rotation error, yaw error, the reported one-sigma yaw, and the
+wall time per pair.
+
+    python3 tools/pair_accuracy.py [--bin target/release] [--samples 50000 200000]
+"""
+import argparse, json, subprocess, tempfile, time, os
+import numpy as np
+
+ap = argparse.ArgumentParser()
+ap.add_argument("--bin", default="target/release")
+ap.add_argument("--samples", type=int, nargs="+", default=[50000, 100000, 200000, 400000])
+ap.add_argument("--cases", nargs="+", default=["1:1024", "3:768", "4:768", "5:768"],
+                help="seed:size pairs")
+args = ap.parse_args()
+dsmgen, dsm = os.path.join(args.bin, "dsmgen"), os.path.join(args.bin, "dsmstream")
+
+def run(*cmd):
+    return subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
+
+def errors(truth, doc, a, b):
+    M = [np.array(t["matrix_world"]) for t in truth["tiles"]]
+    est = np.array(doc["result"]["m_world"])
+    e = np.linalg.inv(est) @ (np.linalg.inv(M[a]) @ M[b])
+    g0, g1 = truth["tiles"][0]["geotransform"], truth["tiles"][1]["geotransform"]
+    w = truth["tiles"][0]["width"]
+    xs, ys = (g1[0], g0[0] + g0[1] * w), (g0[3], g0[3] + g0[5] * w)
+    worst = max(np.linalg.norm((e @ np.array([x, y, 230.0, 1]))[:3] - [x, y, 230.0])
+                for x in xs for y in ys)
+    ang = np.degrees(np.arccos(np.clip((np.trace(e[:3, :3]) - 1) / 2, -1, 1)))
+    yaw = abs(np.degrees(np.arctan2(e[1, 0], e[0, 0])))
+    return worst, ang, yaw
+
+with tempfile.TemporaryDirectory() as tmp:
+    stores = []
+    for case in args.cases:
+        seed, size = case.split(":")
+        tiles, store = f"{tmp}/t{seed}", f"{tmp}/s{seed}.zarr"
+        run(dsmgen, "tiles", "--count", "2", "--size", size, "--seed", seed, "--out", tiles)
+        run(dsm, "ingest", tiles, "--store", store, "-q")
+        stores.append((case, json.load(open(f"{tiles}/truth.json")), store))
+    print("| samples | pairs | median / worst error (cm) | median / worst rotation (deg) | median / worst yaw (deg) | mean sigma yaw (deg) | mean s / pair |")
+    print("|---|---|---|---|---|---|---|")
+    for n in args.samples:
+        rows, secs = [], []
+        for case, truth, store in stores:
+            for a, b in ((0, 1), (1, 0)):
+                t0 = time.time()
+                doc = json.loads(run(dsm, "pair", store, f"tile_0{a}", f"tile_0{b}",
+                                     "--json", "--samples", str(n)))
+                secs.append(time.time() - t0)
+                rows.append(errors(truth, doc, a, b) + (doc["result"]["sigma"]["rot_deg"][2],))
+        r = np.array(rows)
+        med, mx = np.median(r, axis=0), r.max(axis=0)
+        print(f"| {n} | {len(rows)} | {med[0]*100:.1f} / {mx[0]*100:.1f} | {med[1]:.4f} / {mx[1]:.4f} "
+              f"| {med[2]:.4f} / {mx[2]:.4f} | {r[:,3].mean():.4f} | {np.mean(secs):.1f} |")
