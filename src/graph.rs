@@ -11,7 +11,7 @@
 
 mod weights;
 
-pub use weights::{information_weights, paper_weights, Weighting};
+pub use weights::{information_weights, paper_weights, Weighting, VARIANCE_FLOOR_OF_MEDIAN};
 
 use crate::poses::rigid::inverse_rigid;
 use nalgebra::{Matrix4, Vector3};

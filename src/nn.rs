@@ -227,6 +227,35 @@ pub fn surface_below<G: Grid + ?Sized>(
     frame: &PixelFrame,
     query: &Vector3<f64>,
 ) -> Option<SurfacePoint> {
+    surface_below_memo(grid, frame, query, &mut PlaneMemo::default())
+}
+
+/// The ring plane last fitted for one query, reused while the query stays over
+/// the same reference pixel (ICP's late iterations move queries by millimetres,
+/// so most of them do); valid for one grid only.
+#[derive(Clone, Copy, Debug)]
+pub struct PlaneMemo {
+    pixel: (i64, i64),
+    plane: Option<Plane>,
+}
+
+impl Default for PlaneMemo {
+    fn default() -> Self {
+        PlaneMemo {
+            pixel: (i64::MIN, i64::MIN),
+            plane: None,
+        }
+    }
+}
+
+/// `surface_below`, reusing the ring plane kept in `memo` when the query is
+/// over the same pixel as last time (same result, fewer fits).
+pub fn surface_below_memo<G: Grid + ?Sized>(
+    grid: &mut G,
+    frame: &PixelFrame,
+    query: &Vector3<f64>,
+    memo: &mut PlaneMemo,
+) -> Option<SurfacePoint> {
     let (col_f, row_f) = frame.to_pixel(query);
     let (u, v) = (col_f - 0.5, row_f - 0.5);
     let (c0, r0) = (u.floor() as i64, v.floor() as i64);
@@ -244,7 +273,13 @@ pub fn surface_below<G: Grid + ?Sized>(
         + h11 * fx * fy;
     let point = Vector3::new(query.x, query.y, h - frame.z_origin_m);
     let (col, row) = (col_f.floor() as i64, row_f.floor() as i64);
-    let plane = plane_fit(grid, frame, col, row, 2)?;
+    if memo.pixel != (col, row) {
+        *memo = PlaneMemo {
+            pixel: (col, row),
+            plane: plane_fit(grid, frame, col, row, 2),
+        };
+    }
+    let plane = memo.plane?;
     // The four interpolated pixels must lie on the ring's plane: a spike or a
     // wall among them makes the bilinear height meaningless.
     let limit_m = (4.0 * plane.rms_m).max(0.5);
@@ -345,10 +380,9 @@ fn plane_fit<G: Grid + ?Sized>(
     for (i, &(x, y, z)) in pts[..n].iter().enumerate() {
         abs_res[i] = (z - first.height_at(x, y)).abs();
     }
-    let mut sorted = abs_res;
-    let sorted = &mut sorted[..n];
-    sorted.sort_unstable_by(f64::total_cmp);
-    let limit = (3.0 * 1.4826 * sorted[n / 2]).max(0.05);
+    let mut scratch = abs_res;
+    let median = *scratch[..n].select_nth_unstable_by(n / 2, f64::total_cmp).1;
+    let limit = (3.0 * 1.4826 * median).max(0.05);
     let mut dropped = 0;
     for i in 0..n {
         if abs_res[i] > limit {
@@ -363,44 +397,44 @@ fn plane_fit<G: Grid + ?Sized>(
 }
 
 fn fit_plane(pts: &[(f64, f64, f64)], keep: &[bool]) -> Option<Plane> {
-    let n = keep.iter().filter(|&&k| k).count();
-    if n < 6 {
+    // One pass of moment sums, heights taken from the first point's (the
+    // window spans metres, so the sums stay far from cancellation).
+    let z_ref = pts.first()?.2;
+    let (mut n, mut sx, mut sy, mut sz) = (0.0, 0.0, 0.0, 0.0);
+    let (mut sxx, mut syy, mut sxy, mut sxz, mut syz, mut szz) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    for (&(x, y, z), _) in pts.iter().zip(keep).filter(|(_, &k)| k) {
+        let z = z - z_ref;
+        n += 1.0;
+        sx += x;
+        sy += y;
+        sz += z;
+        sxx += x * x;
+        syy += y * y;
+        sxy += x * y;
+        sxz += x * z;
+        syz += y * z;
+        szz += z * z;
+    }
+    if n < 6.0 {
         return None;
     }
-    let inv = 1.0 / n as f64;
-    let (mut mx, mut my, mut mz) = (0.0, 0.0, 0.0);
-    for (&(x, y, z), _) in pts.iter().zip(keep).filter(|(_, &k)| k) {
-        mx += x * inv;
-        my += y * inv;
-        mz += z * inv;
-    }
-    let (mut sxx, mut syy, mut sxy, mut sxz, mut syz) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    for (&(x, y, z), _) in pts.iter().zip(keep).filter(|(_, &k)| k) {
-        let (dx, dy, dz) = (x - mx, y - my, z - mz);
-        sxx += dx * dx;
-        syy += dy * dy;
-        sxy += dx * dy;
-        sxz += dx * dz;
-        syz += dy * dz;
-    }
-    let det = sxx * syy - sxy * sxy;
+    let (mx, my, mz) = (sx / n, sy / n, sz / n);
+    // centred moments
+    let (cxx, cyy, cxy) = (sxx - n * mx * mx, syy - n * my * my, sxy - n * mx * my);
+    let (cxz, cyz, czz) = (sxz - n * mx * mz, syz - n * my * mz, szz - n * mz * mz);
+    let det = cxx * cyy - cxy * cxy;
     if det.abs() < 1e-12 {
         return None;
     }
-    let a = (sxz * syy - syz * sxy) / det;
-    let b = (syz * sxx - sxz * sxy) / det;
-    let z0 = mz - a * mx - b * my;
-    let sum_sq: f64 = pts
-        .iter()
-        .zip(keep)
-        .filter(|(_, &k)| k)
-        .map(|(&(x, y, z), _)| (z - z0 - a * x - b * y).powi(2))
-        .sum();
+    let a = (cxz * cyy - cyz * cxy) / det;
+    let b = (cyz * cxx - cxz * cxy) / det;
+    // residual sum of squares of the least-squares plane
+    let sum_sq = (czz - a * cxz - b * cyz).max(0.0);
     Some(Plane {
-        z0,
+        z0: mz + z_ref - a * mx - b * my,
         a,
         b,
-        rms_m: (sum_sq * inv).sqrt(),
+        rms_m: (sum_sq / n).sqrt(),
     })
 }
 

@@ -16,7 +16,7 @@
 //! residual), chosen Kruskal-style so the least bad edges keep the graph connected.
 
 use super::EdgeResidual;
-use crate::graph::{Edge, PoseGraph, UnionFind};
+use crate::graph::{Edge, PoseGraph, UnionFind, VARIANCE_FLOOR_OF_MEDIAN};
 use crate::poses::rigid::{apply, rotation, translation};
 use nalgebra::{Matrix3, Matrix4, Vector3};
 
@@ -83,6 +83,11 @@ pub(crate) struct OutlierTest {
     /// Normalised rotation / translation residuals above these are outliers.
     pub limit_rotation: f64,
     pub limit_translation: f64,
+    /// Smallest per-axis sigma believed (radians / metres): the information
+    /// weights' variance floor, so that a pair claiming a tiny sigma (noise-free
+    /// data) is neither over-weighted nor judged an outlier for centimetres.
+    pub sigma_floor_rotation_rad: f64,
+    pub sigma_floor_translation_m: f64,
 }
 
 /// A residual in units of its test: sigmas (per axis, root of the sum of squares) or
@@ -102,10 +107,26 @@ impl OutlierTest {
         rule: OutlierRule,
     ) -> Self {
         let by_sigma = rule.by_sigma && graph.edges.iter().all(|e| e.sigma.is_some());
+        // per-axis sigma floors, as the weights' variance floor (mean over axes)
+        let floor_of = |part: &dyn Fn(&crate::graph::EdgeSigma) -> Vector3<f64>| {
+            let mut variances: Vec<f64> = (0..graph.edges.len())
+                .filter(|&k| weights[k] > 0.0)
+                .filter_map(|k| graph.edges[k].sigma.as_ref())
+                .map(|s| part(s).norm_squared() / 3.0)
+                .collect();
+            if variances.is_empty() {
+                return 0.0;
+            }
+            let mid = variances.len() / 2;
+            let median = *variances.select_nth_unstable_by(mid, f64::total_cmp).1;
+            (VARIANCE_FLOOR_OF_MEDIAN * median).sqrt()
+        };
         let unit = OutlierTest {
             by_sigma,
             limit_rotation: 1.0,
             limit_translation: 1.0,
+            sigma_floor_rotation_rad: floor_of(&|s| s.rotation_rad),
+            sigma_floor_translation_m: floor_of(&|s| s.translation_m),
         };
         let normalised: Vec<NormalisedResidual> = (0..graph.edges.len())
             .filter(|&k| weights[k] > 0.0)
@@ -121,9 +142,9 @@ impl OutlierTest {
         };
         let floor = if by_sigma { rule.floor_sigma } else { 1.0 };
         OutlierTest {
-            by_sigma,
             limit_rotation: (rule.k * median(&|r| r.rotation)).max(floor),
             limit_translation: (rule.k * median(&|r| r.translation)).max(floor),
+            ..unit
         }
     }
 
@@ -135,8 +156,16 @@ impl OutlierTest {
     ) -> NormalisedResidual {
         match edge.sigma.filter(|_| self.by_sigma) {
             Some(sigma) => NormalisedResidual {
-                rotation: in_sigmas(&residual.rotation_rad, &sigma.rotation_rad),
-                translation: in_sigmas(&residual.offset_m, &sigma.translation_m),
+                rotation: in_sigmas(
+                    &residual.rotation_rad,
+                    &sigma.rotation_rad,
+                    self.sigma_floor_rotation_rad,
+                ),
+                translation: in_sigmas(
+                    &residual.offset_m,
+                    &sigma.translation_m,
+                    self.sigma_floor_translation_m,
+                ),
             },
             None => NormalisedResidual {
                 rotation: residual.rotation_deg / rule.floor_deg,
@@ -151,12 +180,13 @@ impl OutlierTest {
     }
 }
 
-/// |v / sigma| over the axes with a positive sigma (the others are not estimated).
-fn in_sigmas(v: &Vector3<f64>, sigma: &Vector3<f64>) -> f64 {
+/// |v / max(sigma, floor)| over the axes with a positive sigma (the others are
+/// not estimated).
+fn in_sigmas(v: &Vector3<f64>, sigma: &Vector3<f64>, floor: f64) -> f64 {
     v.iter()
         .zip(sigma.iter())
         .filter(|(_, &s)| s > 0.0)
-        .map(|(x, s)| (x / s).powi(2))
+        .map(|(x, &s)| (x / s.max(floor)).powi(2))
         .sum::<f64>()
         .sqrt()
 }

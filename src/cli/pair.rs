@@ -23,8 +23,9 @@ pub struct IcpArgs {
     /// Outlier threshold on the nearest-neighbour distance, metres (paper: 10).
     #[arg(long, default_value_t = 10.0)]
     pub tau: f64,
-    /// Query points sampled from the moving DSM in the overlap.
-    #[arg(long, default_value_t = 50_000)]
+    /// Query points sampled from the moving DSM in the overlap (all valid
+    /// pixels when the overlap has fewer).
+    #[arg(long, default_value_t = 200_000)]
     pub samples: usize,
     /// Iterations per pyramid level.
     #[arg(long, default_value_t = 40)]
@@ -41,6 +42,8 @@ pub struct IcpArgs {
 }
 
 impl IcpArgs {
+    // `!(x > 0.0)` on purpose: NaN must be refused too
+    #[allow(clippy::neg_cmp_op_on_partial_ord)]
     pub fn to_config(&self) -> anyhow::Result<IcpConfig> {
         if !(self.tau > 0.0)
             || self.samples == 0

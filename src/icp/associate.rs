@@ -11,7 +11,7 @@ use rayon::prelude::*;
 use super::Metric;
 use crate::fit::Correspondence;
 use crate::grid::{Grid, Pyramid};
-use crate::nn::{nearest, normal_at, surface_below, NnStats, PixelFrame};
+use crate::nn::{nearest, normal_at, surface_below_memo, NnStats, PixelFrame, PlaneMemo};
 
 const BLOCK: usize = 4096;
 
@@ -40,68 +40,104 @@ pub fn block_order(points: &mut [Vector3<f64>], frame: &PixelFrame, block_px: i6
     });
 }
 
+/// Matches `points` (moving frame) mapped by `t_ref_moving`. `memo` holds one
+/// entry per point (point-to-surface reuses their ring planes between calls on
+/// the same level); it must have the length of `points`.
+#[allow(clippy::too_many_arguments)]
 pub fn associate<P: Pyramid>(
     reference: &P,
     level: usize,
     frame: &PixelFrame,
     points: &[Vector3<f64>],
+    memo: &mut [PlaneMemo],
     t_ref_moving: &Isometry3<f64>,
     tau_m: f64,
     metric: Metric,
 ) -> Result<Association, String> {
-    let blocks: Vec<Result<Association, String>> = points
+    assert_eq!(points.len(), memo.len(), "one plane memo per point");
+    // Every block writes its matches into its own slice of one allocation
+    // (a slot per query), then the matches are moved to the front in input
+    // order: no per-block vectors, no concatenation copy.
+    let unmatched = Correspondence {
+        moving: Vector3::zeros(),
+        reference: Vector3::zeros(),
+        normal: Vector3::z(),
+        weight: 1.0,
+    };
+    let mut corrs = vec![unmatched; points.len()];
+    let mut distances_m = vec![f64::NAN; points.len()];
+    let mut roughness_m = vec![0.0; points.len()];
+    let counts: Vec<Result<(usize, NnStats), String>> = points
         .par_chunks(BLOCK)
-        .map(|block| {
+        .zip(memo.par_chunks_mut(BLOCK))
+        .zip(corrs.par_chunks_mut(BLOCK))
+        .zip(distances_m.par_chunks_mut(BLOCK))
+        .zip(roughness_m.par_chunks_mut(BLOCK))
+        .map(|((((block, memo), corrs), distances_m), roughness_m)| {
             let mut grid = reference.open_level(level)?;
-            let mut out = Association {
-                queries: block.len(),
-                ..Default::default()
-            };
-            for p in block {
+            let (mut below, mut nn) = (0usize, NnStats::default());
+            for (i, (p, memo)) in block.iter().zip(memo).enumerate() {
                 let q = t_ref_moving.transform_point(&Point3::from(*p)).coords;
                 let (c, r) = frame.to_pixel(&q);
                 if !grid.get(c.floor() as i64, r.floor() as i64).is_nan() {
-                    out.with_reference_below += 1;
+                    below += 1;
                 }
-                let Some(n) = nearest(&mut grid, frame, &q, tau_m, &mut out.nn) else {
+                let Some(n) = nearest(&mut grid, frame, &q, tau_m, &mut nn) else {
                     continue;
                 };
                 if n.distance_m > tau_m {
                     continue;
                 }
-                let (reference, normal, roughness_m) = match metric {
-                    Metric::PointToSurface => match surface_below(&mut grid, frame, &q) {
-                        Some(s) => (s.point, s.normal, s.roughness_m),
-                        None => continue,
-                    },
+                let (reference, normal, roughness) = match metric {
+                    Metric::PointToSurface => {
+                        match surface_below_memo(&mut grid, frame, &q, memo) {
+                            Some(s) => (s.point, s.normal, s.roughness_m),
+                            None => continue,
+                        }
+                    }
                     _ => (n.point, normal_at(&mut grid, frame, n.col, n.row), 0.0),
                 };
-                out.roughness_m.push(roughness_m);
-                out.corrs.push(Correspondence {
+                corrs[i] = Correspondence {
                     moving: q,
                     reference,
                     normal,
                     weight: 1.0,
-                });
-                out.distances_m.push(n.distance_m);
+                };
+                distances_m[i] = n.distance_m;
+                roughness_m[i] = roughness;
             }
             if let Some(e) = grid.take_error() {
                 return Err(e);
             }
-            Ok(out)
+            Ok((below, nn))
         })
         .collect();
-    let mut all = Association::default();
-    for block in blocks {
-        let b = block?;
-        all.corrs.extend(b.corrs);
-        all.distances_m.extend(b.distances_m);
-        all.roughness_m.extend(b.roughness_m);
-        all.with_reference_below += b.with_reference_below;
-        all.queries += b.queries;
-        all.nn.queries += b.nn.queries;
-        all.nn.pixels_visited += b.nn.pixels_visited;
-        all.nn.not_found += b.nn.not_found;
+    let mut all = Association {
+        queries: points.len(),
+        ..Default::default()
+    };
+    for count in counts {
+        let (below, nn) = count?;
+        all.with_reference_below += below;
+        all.nn.queries += nn.queries;
+        all.nn.pixels_visited += nn.pixels_visited;
+        all.nn.not_found += nn.not_found;
     }
+    // compact: matched slots (a finite distance) to the front, in order
+    let mut kept = 0;
+    for i in 0..points.len() {
+        if distances_m[i].is_finite() {
+            corrs[kept] = corrs[i];
+            distances_m[kept] = distances_m[i];
+            roughness_m[kept] = roughness_m[i];
+            kept += 1;
+        }
+    }
+    corrs.truncate(kept);
+    distances_m.truncate(kept);
+    roughness_m.truncate(kept);
+    all.corrs = corrs;
+    all.distances_m = distances_m;
+    all.roughness_m = roughness_m;
     Ok(all)
 }

@@ -16,7 +16,7 @@ use serde::Serialize;
 
 use crate::fit::{point_to_plane, point_to_point, Correspondence, FitSigma, Model};
 use crate::grid::{Grid, Pyramid};
-use crate::nn::{NnStats, PixelFrame};
+use crate::nn::{NnStats, PixelFrame, PlaneMemo};
 use associate::{associate, block_order, Association};
 use sample::{pixel_window, sample_overlap};
 
@@ -63,7 +63,7 @@ impl Default for IcpConfig {
             model: Model::Rigid,
             metric: Metric::PointToSurface,
             tau_m: 10.0,
-            samples: 50_000,
+            samples: 200_000,
             max_iter: 40,
             max_displacement_m: 100.0,
             seed: 1,
@@ -139,6 +139,10 @@ pub enum IcpError {
 
 /// Constraint ratio below which a fit is called degenerate.
 const DEGENERATE_RATIO: f64 = 1e-6;
+
+/// Samples per iteration on the coarse levels and in the first phase of the
+/// full-resolution level (see `run_level`).
+const LADDER_SAMPLES: usize = 50_000;
 
 /// Registers `moving` onto `reference` (see module docs).
 pub fn register<R: Pyramid, M: Pyramid>(
@@ -251,7 +255,12 @@ fn run_level<R: Pyramid, M: Pyramid>(
         &mut mov,
         &sample_frame,
         overlap_box,
-        config.samples,
+        // coarse levels only bring the estimate near; their precision is not kept
+        if level == 0 {
+            config.samples
+        } else {
+            config.samples.min(LADDER_SAMPLES)
+        },
         config.seed ^ level as u64,
     );
     if let Some(e) = mov.take_error() {
@@ -273,81 +282,69 @@ fn run_level<R: Pyramid, M: Pyramid>(
     block_order(&mut samples.points, &ref_frame, 256);
     let lever_m = half_diagonal(overlap_box);
 
-    let mut history: Vec<(f64, usize)> = Vec::new();
-    let mut recent: Vec<Isometry3<f64>> = vec![t_ref_moving];
     let mut nn = NnStats::default();
-    let mut status = IcpStatus::MaxIterations;
-    let mut constraint_ratio = 1.0;
-    let mut sigma = FitSigma::default();
-    let mut iterations = 0;
     let min_inliers = 30.max(samples.points.len() / 100);
-    let match_at = |t: &Isometry3<f64>, nn: &mut NnStats| {
-        let assoc = associate(
-            reference,
-            level,
-            &ref_frame,
-            &samples.points,
-            t,
-            tau_m,
-            config.metric,
-        )
-        .map_err(read)?;
-        add_stats(nn, &assoc.nn);
-        Ok::<_, IcpError>(assoc)
-    };
-    for _ in 0..config.max_iter {
-        iterations += 1;
-        let assoc = match_at(&t_ref_moving, &mut nn)?;
-        if assoc.corrs.len() < min_inliers {
-            status = IcpStatus::TooFewInliers;
-            break;
-        }
-        history.push((rms(&assoc.distances_m), assoc.corrs.len()));
-        let corrs = weighted(
-            smooth_only(assoc.corrs, &assoc.roughness_m, config.max_roughness_m),
-            config.metric,
-        );
-        let (update, ratio) = match config.metric {
-            Metric::PointToPlane | Metric::PointToSurface => {
-                match point_to_plane(&corrs, config.model) {
-                    Some(f) => {
-                        sigma = f.sigma;
-                        (f.update, f.constraint_ratio)
-                    }
-                    None => (Isometry3::identity(), 0.0),
-                }
-            }
-            Metric::PointToPoint => (
-                point_to_point(&corrs, config.model).unwrap_or_else(Isometry3::identity),
-                1.0,
-            ),
+    let match_at =
+        |points: &[Vector3<f64>], memo: &mut [PlaneMemo], t: &Isometry3<f64>, nn: &mut NnStats| {
+            let assoc = associate(
+                reference,
+                level,
+                &ref_frame,
+                points,
+                memo,
+                t,
+                tau_m,
+                config.metric,
+            )
+            .map_err(read)?;
+            add_stats(nn, &assoc.nn);
+            Ok::<_, IcpError>(assoc)
         };
-        constraint_ratio = ratio;
-        if ratio < DEGENERATE_RATIO {
-            status = IcpStatus::Degenerate;
-            break;
-        }
-        t_ref_moving = update * t_ref_moving;
-        tracing::trace!(level, t = ?t_ref_moving.translation.vector, n = corrs.len(), "iteration");
-        if t_ref_moving.translation.vector.norm() > config.max_displacement_m {
-            status = IcpStatus::Diverged;
-            break;
-        }
-        let step_m = update.translation.vector.norm() + update.rotation.angle() * lever_m;
-        recent.push(t_ref_moving);
-        if step_m < config.tolerance_m * scale
-            || stalled(&recent, lever_m, config.tolerance_m * scale)
-        {
-            status = IcpStatus::Converged;
+    // Sample ladder: with many samples, converge on an even subset first (every
+    // k-th point in chunk order), then refine on all of them; the final
+    // iterations, and so the result, use every sample.
+    let stride = samples.points.len().div_ceil(LADDER_SAMPLES);
+    let subset: Vec<Vector3<f64>> = if stride >= 2 {
+        samples.points.iter().step_by(stride).copied().collect()
+    } else {
+        Vec::new()
+    };
+    let mut full_memo = vec![PlaneMemo::default(); samples.points.len()];
+    let mut subset_memo = vec![PlaneMemo::default(); subset.len()];
+    let mut phases: Vec<(&[Vector3<f64>], &mut [PlaneMemo])> = Vec::new();
+    if !subset.is_empty() {
+        phases.push((&subset, &mut subset_memo));
+    }
+    phases.push((&samples.points, &mut full_memo));
+    let mut phase = Phase::default();
+    let mut iterations = 0;
+    for (points, memo) in phases {
+        let min_phase = 30.max(points.len() / 100);
+        phase = iterate(t_ref_moving, min_phase, lever_m, scale, config, &mut |t| {
+            match_at(points, memo, t, &mut nn)
+        })?;
+        t_ref_moving = phase.t_ref_moving;
+        iterations += phase.iterations;
+        if !matches!(
+            phase.status,
+            IcpStatus::Converged | IcpStatus::MaxIterations
+        ) {
             break;
         }
     }
-    let final_association = match_at(&t_ref_moving, &mut nn)?;
+    let Phase {
+        mut status,
+        constraint_ratio,
+        sigma,
+        peak_inliers,
+        ..
+    } = phase;
+    let final_association = match_at(&samples.points, &mut full_memo, &t_ref_moving, &mut nn)?;
     if status != IcpStatus::TooFewInliers && final_association.corrs.len() < min_inliers {
         status = IcpStatus::TooFewInliers;
     }
-    // Diverged: the matches collapsed while the motion ran away.
-    let peak_inliers = history.iter().map(|h| h.1).max().unwrap_or(0);
+    // Diverged: the matches collapsed while the motion ran away (the peak is
+    // over the last phase, which used the same points).
     if status != IcpStatus::TooFewInliers && final_association.corrs.len() * 2 < peak_inliers {
         status = IcpStatus::Diverged;
     }
@@ -360,6 +357,95 @@ fn run_level<R: Pyramid, M: Pyramid>(
         final_association,
         nn,
     })
+}
+
+/// Where one run of the classic loop over a fixed point set ended.
+struct Phase {
+    t_ref_moving: Isometry3<f64>,
+    status: IcpStatus,
+    iterations: usize,
+    constraint_ratio: f64,
+    sigma: FitSigma,
+    peak_inliers: usize,
+}
+
+impl Default for Phase {
+    fn default() -> Self {
+        Phase {
+            t_ref_moving: Isometry3::identity(),
+            status: IcpStatus::MaxIterations,
+            iterations: 0,
+            constraint_ratio: 1.0,
+            sigma: FitSigma::default(),
+            peak_inliers: 0,
+        }
+    }
+}
+
+/// The classic loop on one point set (behind `match_at`): associate, weight, fit, until the update
+/// is below the tolerance, the estimate stalls, or something breaks.
+fn iterate(
+    mut t_ref_moving: Isometry3<f64>,
+    min_inliers: usize,
+    lever_m: f64,
+    scale: f64,
+    config: &IcpConfig,
+    match_at: &mut dyn FnMut(&Isometry3<f64>) -> Result<Association, IcpError>,
+) -> Result<Phase, IcpError> {
+    let mut phase = Phase {
+        t_ref_moving,
+        ..Phase::default()
+    };
+    let mut recent: Vec<Isometry3<f64>> = vec![t_ref_moving];
+    for _ in 0..config.max_iter {
+        phase.iterations += 1;
+        let assoc = match_at(&t_ref_moving)?;
+        if assoc.corrs.len() < min_inliers {
+            phase.status = IcpStatus::TooFewInliers;
+            break;
+        }
+        phase.peak_inliers = phase.peak_inliers.max(assoc.corrs.len());
+        let corrs = weighted(
+            smooth_only(assoc.corrs, &assoc.roughness_m, config.max_roughness_m),
+            config.metric,
+        );
+        let (update, ratio) = match config.metric {
+            Metric::PointToPlane | Metric::PointToSurface => {
+                match point_to_plane(&corrs, config.model) {
+                    Some(f) => {
+                        phase.sigma = f.sigma;
+                        (f.update, f.constraint_ratio)
+                    }
+                    None => (Isometry3::identity(), 0.0),
+                }
+            }
+            Metric::PointToPoint => (
+                point_to_point(&corrs, config.model).unwrap_or_else(Isometry3::identity),
+                1.0,
+            ),
+        };
+        phase.constraint_ratio = ratio;
+        if ratio < DEGENERATE_RATIO {
+            phase.status = IcpStatus::Degenerate;
+            break;
+        }
+        t_ref_moving = update * t_ref_moving;
+        phase.t_ref_moving = t_ref_moving;
+        tracing::trace!(t = ?t_ref_moving.translation.vector, n = corrs.len(), "iteration");
+        if t_ref_moving.translation.vector.norm() > config.max_displacement_m {
+            phase.status = IcpStatus::Diverged;
+            break;
+        }
+        let step_m = update.translation.vector.norm() + update.rotation.angle() * lever_m;
+        recent.push(t_ref_moving);
+        if step_m < config.tolerance_m * scale
+            || stalled(&recent, lever_m, config.tolerance_m * scale)
+        {
+            phase.status = IcpStatus::Converged;
+            break;
+        }
+    }
+    Ok(phase)
 }
 
 /// At the noise floor the inlier set flips between iterations and the estimate

@@ -13,6 +13,7 @@
 pub mod cut;
 pub mod objects;
 pub mod output;
+pub mod score;
 pub mod surface;
 pub mod tiles;
 
@@ -22,6 +23,7 @@ pub use cut::{cut_collection, CutParams, CutRecord, CutReport};
 pub use output::{
     epsg_crs, write_raster, write_tile_set, write_truth, write_truth_grid, Truth, TruthTile,
 };
+pub use score::{PairwiseError, PerDsmError};
 pub use surface::{Sampler, Surface, SurfaceParams};
 pub use tiles::{
     plan_tiles, render_window, rigid_about, solve_written_height, written_height, Layout,
