@@ -19,6 +19,7 @@ ap.add_argument("--samples", type=int, nargs="+", default=[50000, 100000, 200000
 ap.add_argument("--cases", nargs="+",
                 default=["1:1024", "3:768", "4:768", "5:768", "7:2048", "8:2048"],
                 help="seed:size pairs")
+ap.add_argument("--pair-args", default="", help="extra flags for dsmstream pair, one string")
 args = ap.parse_args()
 dsmgen, dsm = os.path.join(args.bin, "dsmgen"), os.path.join(args.bin, "dsmstream")
 
@@ -54,7 +55,7 @@ with tempfile.TemporaryDirectory() as tmp:
             for a, b in ((0, 1), (1, 0)):
                 t0 = time.time()
                 doc = json.loads(run(dsm, "pair", store, f"tile_0{a}", f"tile_0{b}",
-                                     "--json", "--samples", str(n)))
+                                     "--json", "--samples", str(n), *args.pair_args.split()))
                 secs = time.time() - t0
                 rows.append((case.split(":")[1],) + errors(truth, doc, a, b)
                             + (doc["result"]["sigma"]["rot_deg"][2], secs))

@@ -39,6 +39,11 @@ pub struct IcpArgs {
     /// Seed of the sampling.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Point-to-surface: skip reference places whose 7 x 7 neighbourhood
+    /// deviates from a plane by more than this RMS (metres) and 3x the median
+    /// (walls, tree crowns).
+    #[arg(long, default_value_t = 1.0)]
+    pub max_roughness: f64,
 }
 
 impl IcpArgs {
@@ -49,9 +54,10 @@ impl IcpArgs {
             || self.samples == 0
             || self.max_iter == 0
             || !(self.max_displacement > 0.0)
+            || !(self.max_roughness > 0.0)
         {
             return Err(InputError::new(
-                "--tau, --samples, --max-iter and --max-displacement must be positive",
+                "--tau, --samples, --max-iter, --max-displacement and --max-roughness must be positive",
             )
             .into());
         }
@@ -64,6 +70,7 @@ impl IcpArgs {
             max_displacement_m: self.max_displacement,
             seed: self.seed,
             max_level: self.max_level,
+            max_roughness_m: self.max_roughness,
             ..IcpConfig::default()
         })
     }
