@@ -92,60 +92,63 @@ fn complete_lines(text: &str) -> Vec<&str> {
     }
 }
 
+/// A generated 3 x 3 grid of 384 px tiles (20 pairs; several seconds of ICP
+/// on one thread, so the journal's two-second flush lands mid-run), ingested,
+/// with the poses of one uninterrupted run.
+fn slow_collection(dir: &Path) -> (PathBuf, PosesFile, usize) {
+    let tiles = dir.join("tiles");
+    let mut gen = Command::new(env!("CARGO_BIN_EXE_dsmgen"));
+    gen.args(["tiles", "--layout", "grid", "--rows", "3", "--cols", "3"])
+        .args(["--size", "384", "--seed", "5", "--out"])
+        .arg(&tiles);
+    run_ok(gen);
+    let store = dir.join("grid.zarr");
+    let mut ingest = bin();
+    ingest.arg("ingest").arg(&tiles).arg("--store").arg(&store);
+    run_ok(ingest);
+    let out = dir.join("uninterrupted.json");
+    run_ok(align_cmd(&store, &out, &[]));
+    let journal = std::fs::read_to_string(journal_of(&out)).unwrap();
+    let pairs = complete_lines(&journal).len() - 1;
+    (store, PosesFile::read(&out).unwrap(), pairs)
+}
+
 #[test]
 fn align_killed_after_a_journaled_pair_resumes_to_the_same_poses() {
-    let r = reference();
-    let out = r.dir.join("killed.json");
+    let dir = tempfile::tempdir().unwrap();
+    let (store, reference, pairs) = slow_collection(dir.path());
+    let out = dir.path().join("killed.json");
     let journal = journal_of(&out);
-    let mut child = align_cmd(&r.store, &out, &[])
+    let mut child = align_cmd(&store, &out, &[])
         .stdout(Stdio::null())
         .stderr(Stdio::null())
         .spawn()
         .unwrap();
     let deadline = Instant::now() + Duration::from_secs(600);
-    let mut finished_first = false;
-    loop {
-        let text = std::fs::read_to_string(&journal).unwrap_or_default();
-        if complete_lines(&text).len() >= 2 {
-            break;
-        }
-        if child.try_wait().unwrap().is_some() {
-            finished_first = true;
-            break;
-        }
+    while complete_lines(&std::fs::read_to_string(&journal).unwrap_or_default()).len() < 2 {
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "align ended before a pair was journaled"
+        );
         assert!(Instant::now() < deadline, "no journaled pair after 600 s");
         std::thread::sleep(Duration::from_millis(5));
     }
-    if child.try_wait().unwrap().is_none() {
-        child.kill().unwrap(); // SIGKILL
-        let status = child.wait().unwrap();
-        assert!(!status.success());
-        assert!(
-            !out.exists(),
-            "a killed align left {} behind",
-            out.display()
-        );
-        let text = std::fs::read_to_string(&journal).unwrap();
-        let lines = complete_lines(&text);
-        assert!(lines.len() >= 2, "the kill came after a journaled pair");
-        eprintln!(
-            "killed with {} of {} pairs journaled",
-            lines.len() - 1,
-            complete_lines(&r.journal).len() - 1
-        );
-    } else {
-        // Too fast to catch (the whole run finished before a poll saw a
-        // flushed pair); the resume below still checks a complete journal.
-        child.wait().unwrap();
-        eprintln!("align finished before it could be killed (finished_first={finished_first})");
-        std::fs::remove_file(&out).unwrap();
-    }
-    run_ok(align_cmd(&r.store, &out, &["--resume"]));
-    assert_eq!(PosesFile::read(&out).unwrap(), r.poses);
+    child.kill().unwrap(); // SIGKILL
+    child.wait().unwrap();
+    let killed = complete_lines(&std::fs::read_to_string(&journal).unwrap()).len() - 1;
+    eprintln!("killed with {killed} of {pairs} pairs journaled");
+    assert!(killed < pairs, "the kill came before the last pair");
+    assert!(
+        !out.exists(),
+        "a killed align left {} behind",
+        out.display()
+    );
+    run_ok(align_cmd(&store, &out, &["--resume"]));
+    assert_eq!(PosesFile::read(&out).unwrap(), reference);
     let text = std::fs::read_to_string(&journal).unwrap();
     assert_eq!(
-        complete_lines(&text).len(),
-        complete_lines(&r.journal).len(),
+        complete_lines(&text).len() - 1,
+        pairs,
         "every pair journaled exactly once after the resume"
     );
 }
