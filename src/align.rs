@@ -129,17 +129,20 @@ pub fn align(
         })
         .collect();
     if usable.is_empty() {
-        let above = records
+        let min = config.pipeline.min_overlap;
+        let above: Vec<&EdgeRecord> = records
             .iter()
-            .filter(|r| r.overlap >= config.pipeline.min_overlap)
-            .count();
-        return Err(AlignError::Input(if above == 0 {
-            format!(
-                "{root}: no pair overlaps by at least --min-overlap {}",
-                config.pipeline.min_overlap
-            )
-        } else {
-            format!("{root}: none of the {above} overlapping pairs registered (see the log)")
+            .filter(|r| !r.below_min_overlap(min))
+            .collect();
+        return Err(AlignError::Input(match above.first() {
+            None => format!("{root}: no pair overlaps by at least --min-overlap {min}"),
+            Some(first) => format!(
+                "{root}: none of the {} overlapping pairs registered (first: {}-{}: {})",
+                above.len(),
+                first.reference,
+                first.moving,
+                first.note.as_deref().unwrap_or("not converged")
+            ),
         }));
     }
     let origin = local_origin(store);

@@ -20,7 +20,8 @@ use crate::icp::IcpStatus;
 pub struct EdgeRecord {
     pub reference: String,
     pub moving: String,
-    /// s_ij measured on the overviews.
+    /// s_ij measured on the overviews; NaN (JSON null) when scoring failed.
+    #[serde(deserialize_with = "nan_if_null")]
     pub overlap: f64,
     /// None when the pair was skipped or failed.
     pub status: Option<IcpStatus>,
@@ -47,6 +48,17 @@ fn nan_if_null<'de, D: serde::Deserializer<'de>>(deserializer: D) -> Result<f64,
 impl EdgeRecord {
     pub fn key(&self) -> (String, String) {
         (self.reference.clone(), self.moving.clone())
+    }
+
+    /// Skipped by design: scored, and below `min_overlap` (false when the
+    /// scoring failed, overlap NaN).
+    pub fn below_min_overlap(&self, min_overlap: f64) -> bool {
+        self.overlap < min_overlap
+    }
+
+    /// A pair that should have given an edge and did not (scoring or ICP failed).
+    pub fn failed(&self, min_overlap: f64) -> bool {
+        self.m_world.is_none() && !self.below_min_overlap(min_overlap)
     }
 }
 
@@ -263,6 +275,7 @@ mod tests {
         let path = dir.path().join("poses.json.journal");
         let mut j = Journal::create(&path, "s1").unwrap();
         let skipped = EdgeRecord {
+            overlap: 0.05,
             status: None,
             m_world: None,
             rmse_m: f64::NAN,
@@ -270,14 +283,28 @@ mod tests {
             note: Some("overlap 0.050 below --min-overlap".into()),
             ..record(0)
         };
+        let unreadable = EdgeRecord {
+            overlap: f64::NAN,
+            note: Some("overlap scoring failed: c.zarr/b/0/c/0/0: unreadable chunk".into()),
+            ..skipped.clone()
+        };
         j.append(&skipped).unwrap();
         j.append(&record(1)).unwrap();
+        j.append(&EdgeRecord {
+            reference: "t9".into(),
+            moving: "z".into(),
+            ..unreadable
+        })
+        .unwrap();
         j.flush().unwrap();
         drop(j);
         let (_, records) = Journal::resume(&path, "s1").unwrap();
-        assert_eq!(records.len(), 2);
+        assert_eq!(records.len(), 3);
         assert!(records[0].rmse_m.is_nan() && records[0].m_world.is_none());
         assert_eq!(records[1], record(1));
+        assert!(records[2].overlap.is_nan());
+        // below the threshold is skipped by design; unreadable is a failure
+        assert!(!records[0].failed(0.1) && records[2].failed(0.1) && !records[1].failed(0.1));
     }
 
     #[test]

@@ -8,7 +8,7 @@ use clap::Parser;
 use dsmstream::InputError;
 
 fn main() {
-    release_large_buffers_on_free();
+    dsmstream::cache::release_large_buffers_on_free();
     let args = cli::Cli::parse();
     cli::init_logging(args.verbose, args.quiet);
     match cli::run(args.command) {
@@ -24,28 +24,6 @@ fn main() {
             };
             eprintln!("error: {}", one_line(&err));
             std::process::exit(code);
-        }
-    }
-}
-
-/// Every command streams chunk-sized buffers. glibc raises its mmap threshold
-/// past the 1 MiB chunk buffers once the first
-/// one is freed, and from then on keeps freed chunks in per-thread arenas: a fuse
-/// of 64 DSMs of 4096 px with a 128 MiB cache peaked at 297 MB RSS, and at
-/// 149 MB with a fixed 128 KiB threshold (same run time). With the threshold
-/// fixed, every large buffer is its own mapping, returned to the system when
-/// freed, so the resident size follows the cache budget.
-fn release_large_buffers_on_free() {
-    #[cfg(all(target_os = "linux", target_env = "gnu"))]
-    {
-        extern "C" {
-            fn mallopt(param: i32, value: i32) -> i32;
-        }
-        const M_MMAP_THRESHOLD: i32 = -3;
-        // SAFETY: mallopt only tunes the allocator (it takes its own locks); an
-        // unsupported value is refused with a 0 return, which we can ignore.
-        unsafe {
-            mallopt(M_MMAP_THRESHOLD, 128 * 1024);
         }
     }
 }

@@ -12,7 +12,7 @@
 use crossbeam::channel::bounded;
 
 use crate::cache::ChunkCache;
-use crate::grid::Pyramid;
+use crate::grid::{Grid, Pyramid};
 use crate::icp::{matrix_rows, register, IcpConfig};
 use crate::journal::{EdgeRecord, Journal, JournalError};
 use crate::plan::{overlap_score, scoring_level};
@@ -122,6 +122,8 @@ pub fn register_pair(
     match score(&reference, &moving, ri, mi) {
         Ok(s) => record.overlap = s,
         Err(e) => {
+            tracing::warn!(reference = %ri.id, moving = %mi.id, error = %e, "pair failed");
+            record.overlap = f64::NAN;
             record.note = Some(format!("overlap scoring failed: {e}"));
             return record;
         }
@@ -166,5 +168,10 @@ fn score(
         .min(ri.levels.len().min(mi.levels.len()) - 1);
     let mut a = reference.open_level(level)?;
     let mut b = moving.open_level(level)?;
-    Ok(overlap_score(&mut a, &mut b))
+    let s = overlap_score(&mut a, &mut b);
+    // A chunk that failed to decode reads as no-data: say so, not "no overlap".
+    match a.take_error().or_else(|| b.take_error()) {
+        Some(e) => Err(e),
+        None => Ok(s),
+    }
 }

@@ -101,6 +101,129 @@ fn pair_refuses_unknown_ids_and_disjoint_dsms() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("do not overlap"));
 }
 
+fn stderr(out: &std::process::Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+#[test]
+fn align_refuses_an_empty_store_and_no_pair_above_min_overlap() {
+    let dir = tempfile::tempdir().unwrap();
+    let empty = dir.path().join("empty.zarr");
+    std::fs::create_dir(&empty).unwrap();
+    let group = r#"{"zarr_format":3,"node_type":"group","attributes":{"dsmstream":{"version":1,"crs":null,"dsms":[]}}}"#;
+    std::fs::write(empty.join("zarr.json"), group).unwrap();
+    let poses = dir.path().join("p.json");
+    let out = align(&empty, &poses, &[]);
+    assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+    assert!(stderr(&out).contains("holds no DSM"), "{}", stderr(&out));
+    let store = dir.path().join("c.zarr");
+    ingest(&[fixtures().join("synth/chain4")], &store);
+    let out = align(&store, &poses, &["--min-overlap", "0.99"]);
+    assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("no pair overlaps by at least --min-overlap 0.99"),
+        "{}",
+        stderr(&out)
+    );
+    assert!(!poses.exists());
+}
+
+#[test]
+fn a_failed_pair_is_reported_and_align_goes_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = dir.path().join("c.zarr");
+    ingest(&[fixtures().join("synth/chain4")], &store);
+    // tile_01 of the chain is one 512 px chunk per level: truncate its full
+    // resolution, as a disk error or an interrupted copy would.
+    let chunk = store.join("tile_01/0/c/0/0");
+    let bytes = std::fs::read(&chunk).unwrap();
+    std::fs::write(&chunk, &bytes[..100]).unwrap();
+    let poses = dir.path().join("p.json");
+    let out = bin()
+        .arg("align")
+        .arg(&store)
+        .arg("--out")
+        .arg(&poses)
+        .output()
+        .unwrap();
+    let err = stderr(&out);
+    assert!(out.status.success(), "{err}");
+    let named = format!("{}: unreadable chunk", chunk.display());
+    for pair in ["tile_00-tile_01", "tile_01-tile_02"] {
+        let line = err
+            .lines()
+            .find(|l| l.starts_with(&format!("warning: pair {pair} ")))
+            .unwrap_or_else(|| panic!("no warning for {pair}: {err}"));
+        assert!(line.contains(&named), "{line}");
+    }
+    assert!(err.contains("2 disconnected components"), "{err}");
+    let result = dsmstream::poses::PosesFile::read(&poses).unwrap();
+    assert_eq!(result.poses.len(), 4);
+    assert!(result
+        .edges
+        .iter()
+        .all(|e| e.i != "tile_01" && e.j != "tile_01"));
+    assert!(result
+        .edges
+        .iter()
+        .any(|e| e.i == "tile_02" && e.j == "tile_03"));
+    assert!(String::from_utf8_lossy(&out.stdout).contains("3 pairs without edge"));
+    // pair on the broken DSM: bad input, exit 2, the file named
+    let out = bin()
+        .args(["pair"])
+        .arg(&store)
+        .args(["tile_00", "tile_01"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+    assert!(stderr(&out).contains(&named), "{}", stderr(&out));
+}
+
+#[test]
+fn pair_refuses_an_overlap_that_is_all_no_data() {
+    use dsmstream::geotiff::writer::{write_geotiff_f32, CogOptions};
+    use dsmstream::raster::GeoTransform;
+    let dir = tempfile::tempdir().unwrap();
+    // a: 64 x 64 px of sloped ground; b: shifted 32 px east, its western
+    // half (the part over a) no-data, so the footprints overlap but no pixel.
+    let write = |name: &str, x0: f64, nodata_cols: usize| {
+        let path = dir.path().join(name);
+        let options = CogOptions {
+            geotransform: GeoTransform::north_up(500_000.0 + x0, 4_800_000.0, 1.0, 1.0),
+            crs: dsmstream::synth::output::epsg_crs(32617),
+            ..Default::default()
+        };
+        let data: Vec<f32> = (0..64 * 64)
+            .map(|k| {
+                let (row, col) = (k / 64, k % 64);
+                if col < nodata_cols {
+                    f32::NAN
+                } else {
+                    200.0 + 0.1 * col as f32 + 0.05 * row as f32
+                }
+            })
+            .collect();
+        write_geotiff_f32(&path, 64, 64, options, &data).unwrap();
+        path
+    };
+    let (a, b) = (write("a.tif", 0.0, 0), write("b.tif", 32.0, 32));
+    let store = dir.path().join("c.zarr");
+    ingest(&[a, b], &store);
+    let out = bin()
+        .args(["pair"])
+        .arg(&store)
+        .args(["a", "b"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("a and b: no valid pixels in the overlap"),
+        "{}",
+        stderr(&out)
+    );
+    assert!(out.stdout.is_empty());
+}
+
 /// A generated collection (`dsmgen tiles` with `layout_args`), ingested, with its truth.
 fn generated(dir: &Path, layout_args: &[&str]) -> (PathBuf, dsmstream::synth::output::Truth) {
     let tiles = dir.join("tiles");

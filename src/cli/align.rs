@@ -121,7 +121,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let failed: Vec<String> = outcome
         .records
         .iter()
-        .filter(|r| r.m_world.is_none() && r.overlap >= args.min_overlap)
+        .filter(|r| r.failed(args.min_overlap))
         .map(|r| {
             format!(
                 "{}-{} ({})",

@@ -4,7 +4,6 @@
 
 use std::path::PathBuf;
 
-use anyhow::Context;
 use dsmstream::cache::ChunkCache;
 use dsmstream::fit::Model;
 use dsmstream::icp::{matrix_rows, register, IcpConfig, IcpError, IcpResult, Metric};
@@ -148,8 +147,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 InputError::new(format!("{} and {}: {e}", args.reference, args.moving)).into(),
             )
         }
-        Err(e) => {
-            return Err(e).context(format!("registering {} to {}", args.moving, args.reference))
+        // a chunk of the store that cannot be read or decoded (the message names its file)
+        Err(e @ IcpError::Read(_)) => {
+            return Err(InputError::new(format!(
+                "registering {} to {}: {e}",
+                args.moving, args.reference
+            ))
+            .into())
         }
     };
     let seconds = started.elapsed().as_secs_f64();

@@ -38,6 +38,8 @@ pub struct StoreGrid<'a> {
     /// Most recently used first.
     pinned: Vec<Pinned>,
     error: Option<String>,
+    /// `<store>/<id>/<level>`, for errors that name the chunk's file.
+    array_dir: std::path::PathBuf,
 }
 
 impl<'a> StoreGrid<'a> {
@@ -66,6 +68,7 @@ impl<'a> StoreGrid<'a> {
             geotransform: meta.level_geotransform(level),
             pinned: Vec::with_capacity(PINNED_CHUNKS),
             error: None,
+            array_dir: store.root().join(&meta.id).join(level.to_string()),
         })
     }
 
@@ -132,10 +135,8 @@ impl<'a> StoreGrid<'a> {
         });
         loaded.unwrap_or_else(|message| {
             if self.error.is_none() {
-                self.error = Some(format!(
-                    "DSM {} level {} chunk ({chunk_y}, {chunk_x}): {message}",
-                    self.dsm, self.level
-                ));
+                let file = self.array_dir.join(format!("c/{chunk_y}/{chunk_x}"));
+                self.error = Some(format!("{}: unreadable chunk ({message})", file.display()));
             }
             // Pinned but not cached, so the failure is not retried per pixel.
             Arc::new(Chunk {
