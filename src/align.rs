@@ -116,18 +116,7 @@ pub fn align(
         done,
         progress,
     )?;
-    let usable: Vec<&EdgeRecord> = records
-        .iter()
-        .filter(|r| {
-            r.m_world.is_some()
-                && r.status.is_some_and(|s| {
-                    matches!(
-                        s,
-                        crate::icp::IcpStatus::Converged | crate::icp::IcpStatus::MaxIterations
-                    )
-                })
-        })
-        .collect();
+    let usable: Vec<&EdgeRecord> = records.iter().filter(|r| r.usable()).collect();
     if usable.is_empty() {
         let min = config.pipeline.min_overlap;
         let above: Vec<&EdgeRecord> = records
@@ -141,7 +130,7 @@ pub fn align(
                 above.len(),
                 first.reference,
                 first.moving,
-                first.note.as_deref().unwrap_or("not converged")
+                first.why_no_edge()
             ),
         }));
     }

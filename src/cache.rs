@@ -18,7 +18,7 @@ use std::sync::{Arc, Mutex};
 use lru::LruCache;
 
 mod data;
-pub use data::{ChunkData, MAP_MIN_BYTES};
+pub use data::{ChunkData, MapPool, MAP_MIN_BYTES};
 
 /// Every command streams chunk-sized buffers; call this first in `main`. glibc raises its mmap threshold
 /// past the 1 MiB chunk buffers once the first
@@ -103,6 +103,8 @@ pub struct ChunkCache {
     misses: AtomicU64,
     evictions: AtomicU64,
     bytes_decoded: AtomicU64,
+    /// Maps of dropped chunks for the next loads (at most 1/16 of the budget).
+    pool: Arc<MapPool>,
 }
 
 impl ChunkCache {
@@ -127,7 +129,14 @@ impl ChunkCache {
             misses: AtomicU64::new(0),
             evictions: AtomicU64::new(0),
             bytes_decoded: AtomicU64::new(0),
+            pool: MapPool::new(budget_bytes / 16),
         }
+    }
+
+    /// Decoded samples as chunk data, in a recycled map when one of their size
+    /// is free (see [`MapPool`]). Loaders should build their chunks with this.
+    pub fn chunk_data(&self, values: &[f32]) -> ChunkData {
+        self.pool.data(values)
     }
 
     pub fn budget_bytes(&self) -> usize {

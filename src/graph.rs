@@ -13,8 +13,8 @@ mod weights;
 
 pub use weights::{information_weights, paper_weights, Weighting, VARIANCE_FLOOR_OF_MEDIAN};
 
-use crate::poses::rigid::inverse_rigid;
-use nalgebra::{Matrix4, Vector3};
+use crate::poses::rigid::{from_parts, inverse_rigid, rotation, translation};
+use nalgebra::{Matrix3, Matrix4, Rotation3, UnitQuaternion, Vector3};
 use std::collections::VecDeque;
 
 /// One registered pair.
@@ -22,8 +22,13 @@ use std::collections::VecDeque;
 pub struct Edge {
     pub i: usize,
     pub j: usize,
-    /// Relative pose M_ij = M_i^-1 M_j (maps points of j into i's frame).
-    pub m_ij: Matrix4<f64>,
+    /// Rotation R_ij of the relative pose M_ij = M_i^-1 M_j (maps points of j
+    /// into i's frame), as a unit quaternion; see [`Edge::rotation`] and
+    /// [`Edge::m_ij`]. Kept as a quaternion and t, not a 4x4, so a graph of
+    /// 10^6 DSMs and 6 x 10^6 edges holds 0.4 GB less.
+    pub q_ij: UnitQuaternion<f64>,
+    /// Translation t_ij of M_ij.
+    pub t_ij: Vector3<f64>,
     /// Overlap score s_ij = #overlap pixels / #valid pixels, in [0, 1].
     pub overlap: f64,
     /// RMSE of the final ICP iteration, metres.
@@ -44,10 +49,30 @@ pub struct Edge {
 
 /// One-sigma standard errors of a relative pose, per axis of the edges' frame:
 /// rotations about x, y, z (radians) and the translation at `Edge::centre_j`.
+/// Stored as f32: seven digits are plenty for a standard error, and a graph of
+/// 6 x 10^6 edges holds 0.14 GB less.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct EdgeSigma {
-    pub rotation_rad: Vector3<f64>,
-    pub translation_m: Vector3<f64>,
+    rotation_rad: [f32; 3],
+    translation_m: [f32; 3],
+}
+
+impl EdgeSigma {
+    pub fn new(rotation_rad: Vector3<f64>, translation_m: Vector3<f64>) -> Self {
+        let narrow = |v: Vector3<f64>| [v.x as f32, v.y as f32, v.z as f32];
+        EdgeSigma {
+            rotation_rad: narrow(rotation_rad),
+            translation_m: narrow(translation_m),
+        }
+    }
+
+    pub fn rotation_rad(&self) -> Vector3<f64> {
+        Vector3::from(self.rotation_rad.map(f64::from))
+    }
+
+    pub fn translation_m(&self) -> Vector3<f64> {
+        Vector3::from(self.translation_m.map(f64::from))
+    }
 }
 
 impl Edge {
@@ -56,7 +81,8 @@ impl Edge {
         Edge {
             i,
             j,
-            m_ij,
+            q_ij: quaternion(&m_ij),
+            t_ij: translation(&m_ij),
             overlap,
             rmse_m,
             weight: 1.0,
@@ -65,6 +91,32 @@ impl Edge {
             centre_j: Vector3::zeros(),
         }
     }
+
+    /// The relative pose M_ij = [R_ij t_ij; 0 0 0 1].
+    pub fn m_ij(&self) -> Matrix4<f64> {
+        from_parts(&self.rotation(), &self.t_ij)
+    }
+
+    pub fn set_m_ij(&mut self, m_ij: &Matrix4<f64>) {
+        self.q_ij = quaternion(m_ij);
+        self.t_ij = translation(m_ij);
+    }
+
+    /// R_ij.
+    pub fn rotation(&self) -> Matrix3<f64> {
+        self.q_ij.to_rotation_matrix().into_inner()
+    }
+
+    /// M_ij applied to a point of j's frame.
+    pub fn apply(&self, p: &Vector3<f64>) -> Vector3<f64> {
+        self.q_ij * p + self.t_ij
+    }
+}
+
+/// The rotation of a rigid transform (orthonormal, as ICP and the averaging
+/// make them) as a unit quaternion.
+fn quaternion(m: &Matrix4<f64>) -> UnitQuaternion<f64> {
+    UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(rotation(m)))
 }
 
 /// Nodes 0..n and the registered pairs between them.
@@ -124,11 +176,18 @@ impl PoseGraph {
                 return Err(GraphError::SelfLoop { edge: k, node: e.i });
             }
             let sigma_finite = e.sigma.is_none_or(|s| {
-                s.rotation_rad.iter().all(|v| v.is_finite())
-                    && s.translation_m.iter().all(|v| v.is_finite())
+                s.rotation_rad().iter().all(|v| v.is_finite())
+                    && s.translation_m().iter().all(|v| v.is_finite())
             });
             let checks = [
-                ("m_ij", e.m_ij.iter().all(|v| v.is_finite())),
+                (
+                    "m_ij",
+                    e.q_ij
+                        .coords
+                        .iter()
+                        .chain(e.t_ij.iter())
+                        .all(|v| v.is_finite()),
+                ),
                 ("overlap", e.overlap.is_finite()),
                 ("rmse_m", e.rmse_m.is_finite()),
                 ("weight", e.weight.is_finite()),
@@ -278,9 +337,9 @@ pub fn chain_poses(
             for &k in adjacency.edges_of(node) {
                 let e = &graph.edges[k];
                 let (other, m_other) = if e.i == node {
-                    (e.j, m_node * e.m_ij)
+                    (e.j, m_node * e.m_ij())
                 } else {
-                    (e.i, m_node * inverse_rigid(&e.m_ij))
+                    (e.i, m_node * inverse_rigid(&e.m_ij()))
                 };
                 if poses[other].is_none() {
                     poses[other] = Some(m_other);
@@ -427,10 +486,10 @@ mod tests {
             .to_string()
             .contains("negative weight"));
         g.edges[0].translation_weight = 1.0;
-        g.edges[1].sigma = Some(EdgeSigma {
-            rotation_rad: Vector3::new(1e-5, f64::INFINITY, 1e-4),
-            translation_m: Vector3::repeat(0.01),
-        });
+        g.edges[1].sigma = Some(EdgeSigma::new(
+            Vector3::new(1e-5, f64::INFINITY, 1e-4),
+            Vector3::repeat(0.01),
+        ));
         assert_eq!(
             g.validate(),
             Err(GraphError::NotFinite {

@@ -56,9 +56,29 @@ impl EdgeRecord {
         self.overlap < min_overlap
     }
 
-    /// A pair that should have given an edge and did not (scoring or ICP failed).
+    /// Registered with a result the graph can use (converged, or still
+    /// improving at the last iteration).
+    pub fn usable(&self) -> bool {
+        self.m_world.is_some()
+            && matches!(
+                self.status,
+                Some(IcpStatus::Converged | IcpStatus::MaxIterations)
+            )
+    }
+
+    /// A pair that should have given an edge and did not (scoring failed, ICP
+    /// failed, or ICP ended diverged, degenerate or with too few inliers).
     pub fn failed(&self, min_overlap: f64) -> bool {
-        self.m_world.is_none() && !self.below_min_overlap(min_overlap)
+        !self.usable() && !self.below_min_overlap(min_overlap)
+    }
+
+    /// Why a pair gave no edge: its note, else its ICP status.
+    pub fn why_no_edge(&self) -> String {
+        match (&self.note, self.status) {
+            (Some(note), _) => note.clone(),
+            (None, Some(status)) => format!("ICP ended {status:?}"),
+            (None, None) => "not registered".into(),
+        }
     }
 }
 

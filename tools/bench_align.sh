@@ -1,16 +1,18 @@
 #!/usr/bin/env bash
-# Align memory benchmark (issue 4): peak RSS and time of `dsmstream align
-# --cache-mb 128` on generated grid collections of growing size, to show that
+# Align and fuse memory benchmark (issues 4 and 5): peak RSS and time of
+# `dsmstream align --cache-mb 128`, then `dsmstream fuse` of its poses at the
+# same budget, on generated grid collections of growing size, to show that
 # memory is the cache budget plus a constant, whatever the number of DSMs.
 #
 # Usage: tools/bench_align.sh ROWSxCOLSxSIZE...   (from the repository root)
 #   e.g. tools/bench_align.sh 4x4x4096 8x8x4096 8x8x1024 16x16x1024
 # Env:   BENCH_DIR (default /tmp/dsmstream_bench), BIN (default target/release),
 #        CACHE_MB (128), THREADS (default: all cores), OVERLAP (0.3),
-#        ALIGN_ARGS (extra align flags), KEEP=1 keeps tiles and stores.
+#        ALIGN_ARGS (extra align flags), FUSE=0 skips fuse, KEEP=1 keeps
+#        tiles and stores.
 #
 # Each collection: `dsmgen tiles --layout grid` (seed 1, 0.5 m GSD), `dsmstream
-# ingest`, then `dsmstream align`, each under `/usr/bin/time -v`. Prints one
+# ingest`, `dsmstream align`, `dsmstream fuse`, each under `/usr/bin/time -v`. Prints one
 # Markdown row per collection for tools/bench_results.md; logs go to BENCH_DIR.
 set -euo pipefail
 
@@ -28,8 +30,8 @@ wall() { awk -F': ' '/Elapsed \(wall clock\)/{n=split($2,a,":"); s=0; for(i=1;i<
 cpu() { awk -F': ' '/User time/{u=$2} /System time/{s=$2} END{print u+s}' "$1"; }
 rss() { awk -F': ' '/Maximum resident/{printf "%.0f", $2/1024}' "$1"; }
 
-echo "| collection | DSMs | px per DSM | dsmgen wall (s) | ingest wall / CPU (s) | ingest peak RSS (MB) | pairs (edges) | align wall / CPU (s) | align peak RSS (MB) | cache peak (MB) | hit rate |"
-echo "|---|---|---|---|---|---|---|---|---|---|---|"
+echo "| collection | DSMs | px per DSM | dsmgen wall (s) | ingest wall / CPU (s) | ingest peak RSS (MB) | pairs (edges) | align wall / CPU (s) | align peak RSS (MB) | cache peak (MB) | hit rate | fuse wall / CPU (s) | fuse peak RSS (MB) | mosaic px |"
+echo "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
 for spec in "$@"; do
   IFS=x read -r rows cols size <<<"$spec"
   name="grid_${rows}x${cols}_${size}"
@@ -59,7 +61,17 @@ for spec in "$@"; do
   stats=$(sed 's/\x1b\[[0-9;]*m//g' "$log.align.time" | grep "cache stats reported" | tail -1)
   peak=$(sed -n 's/.*peak_mb="\{0,1\}\([0-9.]*\).*/\1/p' <<<"$stats")
   hit=$(sed -n 's/.*hit_rate="\{0,1\}\([0-9.]*\).*/\1/p' <<<"$stats")
-  echo "| $name | $((rows * cols)) | ${size}² | $gen | $(wall "$log.ingest.time") / $(cpu "$log.ingest.time") | $(rss "$log.ingest.time") | $pairs ($edges) | $(wall "$log.align.time") / $(cpu "$log.align.time") | $(rss "$log.align.time") | $peak | $hit |"
+  fuse_cols="| | |"
+  if [ "${FUSE:-1}" = 1 ]; then
+    fused="$BENCH_DIR/$name.fused.tif"
+    rm -f "$fused"
+    /usr/bin/time -v "$BIN/dsmstream" fuse "$store" --poses "$out" --out "$fused" \
+      --cache-mb "$CACHE_MB" --threads "$THREADS" -q >"$log.fuse.out" 2>"$log.fuse.time"
+    mosaic=$(grep -o '[0-9]* x [0-9]* px' "$log.fuse.out" | head -1)
+    fuse_cols="| $(wall "$log.fuse.time") / $(cpu "$log.fuse.time") | $(rss "$log.fuse.time") | $mosaic |"
+    if [ "${KEEP:-0}" != 1 ]; then rm -f "$fused"; fi
+  fi
+  echo "| $name | $((rows * cols)) | ${size}² | $gen | $(wall "$log.ingest.time") / $(cpu "$log.ingest.time") | $(rss "$log.ingest.time") | $pairs ($edges) | $(wall "$log.align.time") / $(cpu "$log.align.time") | $(rss "$log.align.time") | $peak | $hit $fuse_cols"
   if [ "${KEEP:-0}" != 1 ]; then rm -rf "$store"; fi
 done
 echo

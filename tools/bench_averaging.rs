@@ -74,12 +74,22 @@ fn parse_args() -> Result<Config, String> {
     Ok(config)
 }
 
-/// Peak resident set size in MB since the last reset (VmHWM).
+/// Peak resident set size in MiB since the last reset (VmHWM).
 fn peak_rss_mb() -> f64 {
     let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
     status
         .lines()
         .find_map(|l| l.strip_prefix("VmHWM:"))
+        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<f64>().ok())
+        .map_or(f64::NAN, |kb| kb / 1024.0)
+}
+
+/// Resident set size in MiB now (VmRSS): after generation, the input graph.
+fn rss_mb() -> f64 {
+    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
         .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<f64>().ok())
         .map_or(f64::NAN, |kb| kb / 1024.0)
 }
@@ -110,9 +120,9 @@ fn main() {
         }
     );
     println!(
-        "| nodes | edges | build s | setup s | rotation s | translation s | total s | peak RSS MB | rot err deg (rms) | trans err m (rms) | MST trans err m (rms) | rot steps / CG | trans CG |"
+        "| nodes | edges | build s | setup s | rotation s | translation s | total s | peak RSS MB | of which graph MB | rot err deg (rms) | trans err m (rms) | MST trans err m (rms) | rot steps / CG | trans CG |"
     );
-    println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for &n in &config.sizes {
         reset_peak_rss();
         let topology = match config.topology.as_str() {
@@ -133,6 +143,7 @@ fn main() {
             }
         }
         let build_s = built.elapsed().as_secs_f64();
+        let graph_mb = rss_mb();
         let options = AveragingOptions {
             robust: config.robust,
             preconditioner: config.preconditioner,
@@ -159,7 +170,7 @@ fn main() {
             "-".into()
         };
         println!(
-            "| {} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.0} | {:.5} | {:.4} | {} | {} / {} | {} |{}",
+            "| {} | {} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.0} | {:.0} | {:.5} | {:.4} | {} | {} / {} | {} |{}",
             n,
             synthetic.graph.edges.len(),
             build_s,
@@ -168,6 +179,7 @@ fn main() {
             result.timings.translation_s,
             result.timings.total_s,
             peak_mb,
+            graph_mb,
             errors.rotation_rms_deg,
             errors.translation_rms_m,
             mst_err,

@@ -57,6 +57,9 @@ struct Args {
     threads: Vec<usize>,
     #[arg(long, default_value_t = 3)]
     repeats: usize,
+    /// Run only one side (for profiling): dsmstream or zarrs.
+    #[arg(long)]
+    only: Option<String>,
 }
 
 /// One window: top-left (col, row) and size.
@@ -220,6 +223,8 @@ fn main() -> anyhow::Result<()> {
                     let cache = ChunkCache::new(budget as usize);
                     let zcache = ChunkCacheDecodedLruSizeLimit::new(array.clone(), budget);
                     let warm = budget_name == "fits";
+                    let run_ours = a.only.as_deref() != Some("zarrs");
+                    let run_zarrs = a.only.as_deref() != Some("dsmstream");
                     if warm {
                         ours(&store, &cache, wins);
                         zarrs_cached(&zcache, wins);
@@ -229,10 +234,14 @@ fn main() -> anyhow::Result<()> {
                     let (mut c_ours, mut c_zarrs) = (0.0, 0.0);
                     for _ in 0..a.repeats {
                         let t = Instant::now();
-                        c_ours = ours(&store, &cache, wins);
+                        if run_ours {
+                            c_ours = ours(&store, &cache, wins);
+                        }
                         t_ours.push(t.elapsed().as_secs_f64());
                         let t = Instant::now();
-                        c_zarrs = zarrs_cached(&zcache, wins);
+                        if run_zarrs {
+                            c_zarrs = zarrs_cached(&zcache, wins);
+                        }
                         t_zarrs.push(t.elapsed().as_secs_f64());
                     }
                     let misses = (cache.stats().misses - before) / a.repeats as u64;

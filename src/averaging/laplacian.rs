@@ -56,10 +56,11 @@ pub(crate) fn pair_match(laplacian: &Laplacian) -> (Vec<u32>, usize) {
         offsets[k + 1] += offsets[k];
     }
     let mut fill = offsets.clone();
-    let mut neighbours = vec![(0u32, 0.0f64); offsets[n] as usize];
-    for &(i, j, w) in &laplacian.edges {
+    // (neighbour, edge index): 8 bytes an entry, the weight read from the edge
+    let mut neighbours = vec![(0u32, 0u32); offsets[n] as usize];
+    for (k, &(i, j, _)) in laplacian.edges.iter().enumerate() {
         for (a, b) in [(i, j), (j, i)] {
-            neighbours[fill[a as usize] as usize] = (b, w);
+            neighbours[fill[a as usize] as usize] = (b, k as u32);
             fill[a as usize] += 1;
         }
     }
@@ -74,7 +75,8 @@ pub(crate) fn pair_match(laplacian: &Laplacian) -> (Vec<u32>, usize) {
         let best = candidates
             .iter()
             .filter(|&&(j, _)| pair_of[j as usize] == u32::MAX && j as usize != k)
-            .fold(None, |best: Option<(u32, f64)>, &(j, w)| match best {
+            .map(|&(j, edge)| (j, laplacian.edges[edge as usize].2))
+            .fold(None, |best: Option<(u32, f64)>, (j, w)| match best {
                 Some((_, bw)) if bw >= w => best,
                 _ => Some((j, w)),
             });
@@ -100,15 +102,22 @@ pub(crate) fn aggregate_edges(
         })
         .collect();
     keyed.sort_unstable_by_key(|&(key, _)| key);
-    let mut merged: Vec<(u32, u32, f64)> = Vec::with_capacity(keyed.len() / 2);
-    for (key, w) in keyed {
-        let (a, b) = ((key >> 32) as u32, key as u32);
-        match merged.last_mut() {
-            Some(last) if last.0 == a && last.1 == b => last.2 += w,
-            _ => merged.push((a, b, w)),
+    // Sum parallel edges in place, then reuse the buffer (same size and
+    // alignment): no second edge list at any time.
+    let mut len = 0;
+    for k in 0..keyed.len() {
+        if len > 0 && keyed[len - 1].0 == keyed[k].0 {
+            keyed[len - 1].1 += keyed[k].1;
+        } else {
+            keyed[len] = keyed[k];
+            len += 1;
         }
     }
-    merged
+    keyed.truncate(len);
+    keyed
+        .into_iter()
+        .map(|(key, w)| ((key >> 32) as u32, key as u32, w))
+        .collect()
 }
 
 #[cfg(test)]

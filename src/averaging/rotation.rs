@@ -27,7 +27,7 @@
 use super::cg::{pcg, prefetch, CgTolerance};
 use super::multilevel::Multilevel;
 use crate::graph::{Components, PoseGraph};
-use crate::poses::rigid::{project_to_so3, rotation};
+use crate::poses::rigid::project_to_so3;
 use nalgebra::{Matrix3, SymmetricEigen};
 
 /// Edges looked ahead when prefetching the randomly accessed blocks.
@@ -94,7 +94,7 @@ impl<'a> ConnectionLaplacian<'a> {
                 prefetch(out, ahead.j);
             }
             if w > 0.0 {
-                let r = rotation(&e.m_ij);
+                let r = e.rotation();
                 out[e.i] -= (r * p[e.j]) * w;
                 out[e.j] -= (r.tr_mul(&p[e.i])) * w;
             }
@@ -265,7 +265,7 @@ mod tests {
     use super::*;
     use crate::averaging::active_laplacian;
     use crate::averaging::synthetic::{generate, SyntheticSpec, Topology};
-    use crate::poses::rigid::rotation_between_deg;
+    use crate::poses::rigid::{rotation, rotation_between_deg};
 
     fn settings() -> RotationSettings {
         RotationSettings {

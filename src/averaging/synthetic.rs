@@ -129,10 +129,8 @@ pub fn generate(spec: &SyntheticSpec) -> SyntheticGraph {
         let overlap = 0.3 + 0.6 * rng.next_f64();
         let rmse_m = spec.noise_translation_m * (1.0 + rng.next_f64()) + 0.05;
         edges.push(Edge {
-            sigma: noisy.then(|| EdgeSigma {
-                rotation_rad: Vector3::repeat(sigma_rad),
-                translation_m: Vector3::repeat(sigma_m),
-            }),
+            sigma: noisy
+                .then(|| EdgeSigma::new(Vector3::repeat(sigma_rad), Vector3::repeat(sigma_m))),
             centre_j,
             ..Edge::new(
                 i,
@@ -279,7 +277,7 @@ mod tests {
         let g = generate(&SyntheticSpec::exact(30, Topology::Grid { width: 6 }, 2));
         for e in &g.graph.edges {
             let expected = inverse_rigid(&g.truth[e.i]) * g.truth[e.j];
-            assert!((e.m_ij - expected).abs().max() < 1e-12);
+            assert!((e.m_ij() - expected).abs().max() < 1e-12);
         }
         let errors = pose_errors(&g.truth, &g.truth, &g.graph.components());
         assert_eq!(errors.translation_max_m, 0.0);

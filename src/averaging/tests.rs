@@ -204,7 +204,7 @@ fn disconnected_components_are_solved_separately() {
 
 /// Adds 5 m to the x translation of edge `k`.
 fn corrupt(synthetic: &mut SyntheticGraph, k: usize) {
-    synthetic.graph.edges[k].m_ij[(0, 3)] += 5.0;
+    synthetic.graph.edges[k].t_ij.x += 5.0;
 }
 
 #[test]
@@ -260,7 +260,7 @@ fn several_outliers_are_all_dropped() {
     for &k in &bad {
         corrupt(&mut synthetic, k);
     }
-    synthetic.graph.edges[401].m_ij[(2, 3)] -= 30.0;
+    synthetic.graph.edges[401].t_ij.z -= 30.0;
     let result = average(&synthetic.graph, &AveragingOptions::default()).unwrap();
     assert_eq!(result.dropped_edges, bad.to_vec());
     assert!(errors_of(&result, &synthetic).translation_max_m < 0.05);
@@ -312,7 +312,7 @@ fn components_helper_matches_the_result() {
     assert_eq!(result.components.len(), 2);
     // The zero-weight edge still gets a residual, against poses it did not shape.
     let m = inverse_rigid(&result.poses[9]) * result.poses[10];
-    assert!((translation(&m) - translation(&graph.edges[9].m_ij)).norm() > 1e-6);
+    assert!((translation(&m) - graph.edges[9].t_ij).norm() > 1e-6);
 }
 
 #[test]

@@ -15,7 +15,6 @@
 use super::cg::{pcg, CgReport, CgTolerance};
 use super::multilevel::Multilevel;
 use crate::graph::{Components, PoseGraph};
-use crate::poses::rigid::apply;
 use nalgebra::{Matrix3, Vector3};
 
 #[derive(Clone, Debug)]
@@ -38,7 +37,7 @@ pub(crate) fn solve_translations(
     let mut rhs = vec![Vector3::zeros(); graph.n];
     for (e, &w) in graph.edges.iter().zip(weights) {
         if w > 0.0 {
-            let b_ij = rotations[e.i] * apply(&e.m_ij, &e.centre_j) - rotations[e.j] * e.centre_j;
+            let b_ij = rotations[e.i] * e.apply(&e.centre_j) - rotations[e.j] * e.centre_j;
             let offset = b_ij * w;
             rhs[e.j] += offset;
             rhs[e.i] -= offset;

@@ -1,18 +1,24 @@
 //! [`ChunkData`]: the samples of one cached chunk, kept outside the malloc heap
-//! when large.
+//! when large, and [`MapPool`], which recycles those maps.
 //!
 //! Cached chunks (~1 MB each) live for a while and die in LRU order, on
 //! whichever thread evicts them, while zarrs' decode buffers and the ICP's
 //! vectors come and go around them in glibc's per-thread arenas. Freed chunk
 //! slots then sit in the arenas as holes that the next allocations only partly
-//! reuse, and the process grew ~100 MB past the cache budget on a 16-DSM align
-//! (tools/bench_results.md). So a chunk of at least [`MAP_MIN_BYTES`] gets its
-//! own anonymous memory map: eviction unmaps it and the pages go straight back
-//! to the system, and the resident chunk bytes equal the cache's accounting.
-//! Small chunks (tests, tiny rasters) stay in a `Vec`.
+//! reuse, and the process grew ~100 MB past the cache budget on a 16-DSM align.
+//! So a chunk of at least [`MAP_MIN_BYTES`] gets its own anonymous memory map,
+//! and the resident chunk bytes equal the cache's accounting. Small chunks
+//! (tests, tiny rasters) stay in a `Vec`.
+//!
+//! A fresh map costs a page fault per 4 KiB page on first write and an unmap
+//! on eviction: a third of the time of a cache miss (`tools/bench_cache`). So a
+//! dropped chunk's map goes back to the [`MapPool`] of its cache (bounded in
+//! bytes), and the next chunk of the same size is copied into pages that are
+//! already resident.
 
 use std::fmt;
 use std::ops::Deref;
+use std::sync::{Arc, Mutex};
 
 /// Chunks of at least this many bytes are memory-mapped.
 pub const MAP_MIN_BYTES: usize = 256 << 10;
@@ -22,7 +28,68 @@ pub struct ChunkData(Repr);
 
 enum Repr {
     Heap(Vec<f32>),
-    Mapped { map: memmap2::MmapMut, len: usize },
+    Mapped {
+        /// Always `Some` until `drop` hands it back to the pool.
+        map: Option<memmap2::MmapMut>,
+        len: usize,
+        pool: Option<Arc<MapPool>>,
+    },
+}
+
+/// Anonymous maps of dropped chunks, reused for the next chunk of the same
+/// byte size; holds at most `max_bytes` (the rest are unmapped).
+#[derive(Debug)]
+pub struct MapPool {
+    maps: Mutex<Vec<memmap2::MmapMut>>,
+    max_bytes: usize,
+}
+
+impl MapPool {
+    pub fn new(max_bytes: usize) -> Arc<MapPool> {
+        Arc::new(MapPool {
+            maps: Mutex::new(Vec::new()),
+            max_bytes,
+        })
+    }
+
+    /// The samples in a pooled map of their size, or a new one.
+    pub fn data(self: &Arc<MapPool>, values: &[f32]) -> ChunkData {
+        let bytes = std::mem::size_of_val(values);
+        if bytes < MAP_MIN_BYTES {
+            return ChunkData(Repr::Heap(values.to_vec()));
+        }
+        let reused = {
+            let mut maps = self.maps.lock().unwrap_or_else(|p| p.into_inner());
+            maps.iter()
+                .rposition(|m| m.len() == bytes)
+                .map(|k| maps.swap_remove(k))
+        };
+        let map = match reused {
+            Some(map) => Ok(map),
+            None => memmap2::MmapOptions::new().len(bytes).map_anon(),
+        };
+        match map {
+            Ok(map) => ChunkData::mapped(map, values, Some(self.clone())),
+            Err(e) => {
+                tracing::debug!(error = %e, "chunk map failed; kept on the heap");
+                ChunkData(Repr::Heap(values.to_vec()))
+            }
+        }
+    }
+
+    fn give_back(&self, map: memmap2::MmapMut) {
+        let mut maps = self.maps.lock().unwrap_or_else(|p| p.into_inner());
+        let held: usize = maps.iter().map(|m| m.len()).sum();
+        if held + map.len() <= self.max_bytes {
+            maps.push(map);
+        }
+    }
+
+    /// Bytes of the maps waiting for reuse.
+    pub fn held_bytes(&self) -> usize {
+        let maps = self.maps.lock().unwrap_or_else(|p| p.into_inner());
+        maps.iter().map(|m| m.len()).sum()
+    }
 }
 
 impl ChunkData {
@@ -34,18 +101,7 @@ impl ChunkData {
             return ChunkData(Repr::Heap(values));
         }
         match memmap2::MmapOptions::new().len(bytes).map_anon() {
-            Ok(mut map) => {
-                // SAFETY: the map is `bytes` long, page-aligned (so aligned for
-                // f32), writable and exclusively ours; any bit pattern is an f32.
-                let dst = unsafe {
-                    std::slice::from_raw_parts_mut(map.as_mut_ptr().cast::<f32>(), values.len())
-                };
-                dst.copy_from_slice(&values);
-                ChunkData(Repr::Mapped {
-                    map,
-                    len: values.len(),
-                })
-            }
+            Ok(map) => ChunkData::mapped(map, &values, None),
             Err(e) => {
                 tracing::debug!(error = %e, "chunk map failed; kept on the heap");
                 ChunkData(Repr::Heap(values))
@@ -53,12 +109,28 @@ impl ChunkData {
         }
     }
 
+    /// `values` copied to the start of `map` (at least as long).
+    fn mapped(mut map: memmap2::MmapMut, values: &[f32], pool: Option<Arc<MapPool>>) -> ChunkData {
+        assert!(map.len() >= std::mem::size_of_val(values));
+        // SAFETY: the map is at least `values` long, page-aligned (so aligned
+        // for f32), writable and exclusively ours; any bit pattern is an f32.
+        let dst =
+            unsafe { std::slice::from_raw_parts_mut(map.as_mut_ptr().cast::<f32>(), values.len()) };
+        dst.copy_from_slice(values);
+        ChunkData(Repr::Mapped {
+            map: Some(map),
+            len: values.len(),
+            pool,
+        })
+    }
+
     pub fn as_slice(&self) -> &[f32] {
         match &self.0 {
             Repr::Heap(v) => v,
-            // SAFETY: `from_vec` initialised `len` f32 values at the start of
+            // SAFETY: `mapped` initialised `len` f32 values at the start of
             // the page-aligned map, which lives (unchanged) as long as `self`.
-            Repr::Mapped { map, len } => unsafe {
+            Repr::Mapped { map, len, .. } => unsafe {
+                let map = map.as_ref().expect("mapped until dropped");
                 std::slice::from_raw_parts(map.as_ptr().cast::<f32>(), *len)
             },
         }
@@ -67,6 +139,21 @@ impl ChunkData {
     /// True when the samples live in their own memory map.
     pub fn is_mapped(&self) -> bool {
         matches!(self.0, Repr::Mapped { .. })
+    }
+}
+
+impl Drop for ChunkData {
+    fn drop(&mut self) {
+        if let Repr::Mapped {
+            map,
+            pool: Some(pool),
+            ..
+        } = &mut self.0
+        {
+            if let Some(map) = map.take() {
+                pool.give_back(map);
+            }
+        }
     }
 }
 
@@ -126,6 +213,29 @@ mod tests {
         assert!(same);
         let copy = data.clone();
         assert!(copy.is_mapped() && copy[..5] == values[..5]);
+    }
+
+    #[test]
+    fn dropped_maps_are_reused_up_to_the_pool_bound() {
+        let n = MAP_MIN_BYTES / 4;
+        let pool = MapPool::new(2 * MAP_MIN_BYTES);
+        let chunks: Vec<ChunkData> = (0..3).map(|k| pool.data(&vec![k as f32; n])).collect();
+        assert!(chunks.iter().all(ChunkData::is_mapped));
+        let addresses: Vec<*const f32> = chunks.iter().map(|c| c.as_ptr()).collect();
+        drop(chunks);
+        // two fit in the pool, the third was unmapped
+        assert_eq!(pool.held_bytes(), 2 * MAP_MIN_BYTES);
+        let again = pool.data(&vec![7.0; n]);
+        assert!(addresses.contains(&again.as_ptr()));
+        assert!(
+            again.iter().all(|&v| v == 7.0),
+            "the old samples are overwritten"
+        );
+        assert_eq!(pool.held_bytes(), MAP_MIN_BYTES);
+        // another size does not take a pooled map
+        let other = pool.data(&vec![1.0; n + 1024]);
+        assert!(!addresses.contains(&other.as_ptr()));
+        assert_eq!(pool.held_bytes(), MAP_MIN_BYTES);
     }
 
     #[test]

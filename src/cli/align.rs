@@ -122,14 +122,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .records
         .iter()
         .filter(|r| r.failed(args.min_overlap))
-        .map(|r| {
-            format!(
-                "{}-{} ({})",
-                r.reference,
-                r.moving,
-                r.note.clone().unwrap_or_default()
-            )
-        })
+        .map(|r| format!("{}-{} ({})", r.reference, r.moving, r.why_no_edge()))
         .collect();
     for f in &failed {
         eprintln!("warning: pair {f} gave no edge");

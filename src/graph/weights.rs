@@ -47,10 +47,10 @@ impl EdgeSigma {
     /// s = 0.6, and about the same once divided by sqrt(s).
     pub fn from_fit(sigma: &FitSigma, overlap: f64) -> Self {
         let inflation = 1.0 / overlap.clamp(1e-3, 1.0).sqrt();
-        EdgeSigma {
-            rotation_rad: Vector3::from(sigma.rot_deg).map(|d| d.to_radians() * inflation),
-            translation_m: Vector3::from(sigma.trans_m) * inflation,
-        }
+        EdgeSigma::new(
+            Vector3::from(sigma.rot_deg).map(|d| d.to_radians() * inflation),
+            Vector3::from(sigma.trans_m) * inflation,
+        )
     }
 }
 
@@ -80,8 +80,8 @@ pub fn information_weights(edges: &mut [Edge]) -> Result<(), GraphError> {
         let sigma = e.sigma.ok_or(GraphError::MissingSigma { edge: k })?;
         let variance = |v: &nalgebra::Vector3<f64>| v.norm_squared() / 3.0;
         let (vr, vt) = (
-            variance(&sigma.rotation_rad),
-            variance(&sigma.translation_m),
+            variance(&sigma.rotation_rad()),
+            variance(&sigma.translation_m()),
         );
         if !(vr.is_finite() && vt.is_finite()) {
             return Err(GraphError::NotFinite {
@@ -127,10 +127,7 @@ mod tests {
 
     fn edge(overlap: f64, rmse_m: f64, sigma: Option<(f64, f64)>) -> Edge {
         Edge {
-            sigma: sigma.map(|(r, t)| EdgeSigma {
-                rotation_rad: Vector3::new(r, r, r),
-                translation_m: Vector3::new(t, t, t),
-            }),
+            sigma: sigma.map(|(r, t)| EdgeSigma::new(Vector3::repeat(r), Vector3::repeat(t))),
             ..Edge::new(0, 1, Matrix4::identity(), overlap, rmse_m)
         }
     }
@@ -181,14 +178,19 @@ mod tests {
             trans_m: [0.02, 0.01, 0.002],
         };
         let full = EdgeSigma::from_fit(&fit, 1.0);
-        assert!((full.rotation_rad.z - 0.01f64.to_radians()).abs() < 1e-15);
-        assert_eq!(full.translation_m, Vector3::new(0.02, 0.01, 0.002));
+        // stored as f32: seven digits
+        let close = |a: Vector3<f64>, b: Vector3<f64>| (a - b).norm() <= 1e-7 * b.norm();
+        assert!(close(
+            full.rotation_rad(),
+            Vector3::new(0.001, 0.002, 0.01).map(f64::to_radians)
+        ));
+        assert!(close(full.translation_m(), Vector3::new(0.02, 0.01, 0.002)));
         let quarter = EdgeSigma::from_fit(&fit, 0.25);
-        assert!((quarter.rotation_rad - full.rotation_rad * 2.0).norm() < 1e-15);
-        assert!((quarter.translation_m - full.translation_m * 2.0).norm() < 1e-15);
+        assert!(close(quarter.rotation_rad(), full.rotation_rad() * 2.0));
+        assert!(close(quarter.translation_m(), full.translation_m() * 2.0));
         // A zero overlap (never an edge, but no division by zero either).
         assert!(EdgeSigma::from_fit(&fit, 0.0)
-            .translation_m
+            .translation_m()
             .iter()
             .all(|v| v.is_finite()));
     }

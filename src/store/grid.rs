@@ -115,7 +115,7 @@ impl<'a> StoreGrid<'a> {
             chunk_x: chunk_x as u32,
         };
         let side = self.chunk as usize;
-        let array = &self.array;
+        let (array, cache) = (&self.array, self.cache);
         let loaded = self.cache.get_or_load(key, || {
             let data: Vec<f32> = array
                 .retrieve_chunk(&[chunk_y as u64, chunk_x as u64])
@@ -130,7 +130,7 @@ impl<'a> StoreGrid<'a> {
             Ok(Chunk {
                 width: side,
                 height: side,
-                data: data.into(),
+                data: cache.chunk_data(&data),
             })
         });
         loaded.unwrap_or_else(|message| {
