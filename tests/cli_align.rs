@@ -27,6 +27,11 @@ fn ingest(inputs: &[PathBuf], store: &Path) {
     );
 }
 
+/// `dsmstream pair <store> <args>`.
+fn pair(store: &Path, args: &[&str]) -> std::process::Output {
+    bin().arg("pair").arg(store).args(args).output().unwrap()
+}
+
 fn align(store: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
     bin()
         .arg("align")
@@ -77,21 +82,11 @@ fn pair_refuses_unknown_ids_and_disjoint_dsms() {
         &[chain.join("tile_00.tif"), chain.join("tile_03.tif")],
         &store,
     );
-    let out = bin()
-        .args(["pair"])
-        .arg(&store)
-        .args(["tile_00", "nope"])
-        .output()
-        .unwrap();
+    let out = pair(&store, &["tile_00", "nope"]);
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("no DSM with id 'nope'"));
     // tile_00 and tile_03 of the chain are 153 m apart: no overlap
-    let out = bin()
-        .args(["pair"])
-        .arg(&store)
-        .args(["tile_00", "tile_03"])
-        .output()
-        .unwrap();
+    let out = pair(&store, &["tile_00", "tile_03"]);
     assert_eq!(
         out.status.code(),
         Some(2),
@@ -169,12 +164,7 @@ fn a_failed_pair_is_reported_and_align_goes_on() {
         .any(|e| e.i == "tile_02" && e.j == "tile_03"));
     assert!(String::from_utf8_lossy(&out.stdout).contains("3 pairs without edge"));
     // pair on the broken DSM: bad input, exit 2, the file named
-    let out = bin()
-        .args(["pair"])
-        .arg(&store)
-        .args(["tile_00", "tile_01"])
-        .output()
-        .unwrap();
+    let out = pair(&store, &["tile_00", "tile_01"]);
     assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
     assert!(stderr(&out).contains(&named), "{}", stderr(&out));
 }
@@ -209,12 +199,7 @@ fn pair_refuses_an_overlap_that_is_all_no_data() {
     let (a, b) = (write("a.tif", 0.0, 0), write("b.tif", 32.0, 32));
     let store = dir.path().join("c.zarr");
     ingest(&[a, b], &store);
-    let out = bin()
-        .args(["pair"])
-        .arg(&store)
-        .args(["a", "b"])
-        .output()
-        .unwrap();
+    let out = pair(&store, &["a", "b"]);
     assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
     assert!(
         stderr(&out).contains("a and b: no valid pixels in the overlap"),

@@ -74,24 +74,24 @@ fn parse_args() -> Result<Config, String> {
     Ok(config)
 }
 
-/// Peak resident set size in MiB since the last reset (VmHWM).
-fn peak_rss_mb() -> f64 {
+/// A size line of /proc/self/status ("VmHWM:", "VmRSS:") in MiB.
+fn status_mb(key: &str) -> f64 {
     let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
     status
         .lines()
-        .find_map(|l| l.strip_prefix("VmHWM:"))
+        .find_map(|l| l.strip_prefix(key))
         .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<f64>().ok())
         .map_or(f64::NAN, |kb| kb / 1024.0)
 }
 
-/// Resident set size in MiB now (VmRSS): after generation, the input graph.
+/// Peak resident set size in MiB since the last reset.
+fn peak_rss_mb() -> f64 {
+    status_mb("VmHWM:")
+}
+
+/// Resident set size in MiB now (after generation: the input graph).
 fn rss_mb() -> f64 {
-    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
-    status
-        .lines()
-        .find_map(|l| l.strip_prefix("VmRSS:"))
-        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<f64>().ok())
-        .map_or(f64::NAN, |kb| kb / 1024.0)
+    status_mb("VmRSS:")
 }
 
 /// Resets VmHWM to the current RSS (Linux: "5" > /proc/self/clear_refs).
