@@ -10,8 +10,11 @@ wall time per pair.
     python3 tools/pair_accuracy.py [--bin target/release] [--samples 50000 200000]
         [--cases 1:1024 3:768 ...]   (seed:size; with several sizes, a row per size too)
 """
-import argparse, json, subprocess, tempfile, time, os
+import argparse, json, subprocess, tempfile, time, os, sys
 import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from truth_errors import pair_errors
 
 ap = argparse.ArgumentParser()
 ap.add_argument("--bin", default="target/release")
@@ -27,17 +30,7 @@ def run(*cmd):
     return subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
 
 def errors(truth, doc, a, b):
-    M = [np.array(t["matrix_world"]) for t in truth["tiles"]]
-    est = np.array(doc["result"]["m_world"])
-    e = np.linalg.inv(est) @ (np.linalg.inv(M[a]) @ M[b])
-    g0, g1 = truth["tiles"][0]["geotransform"], truth["tiles"][1]["geotransform"]
-    w = truth["tiles"][0]["width"]
-    xs, ys = (g1[0], g0[0] + g0[1] * w), (g0[3], g0[3] + g0[5] * w)
-    worst = max(np.linalg.norm((e @ np.array([x, y, 230.0, 1]))[:3] - [x, y, 230.0])
-                for x in xs for y in ys)
-    ang = np.degrees(np.arccos(np.clip((np.trace(e[:3, :3]) - 1) / 2, -1, 1)))
-    yaw = abs(np.degrees(np.arctan2(e[1, 0], e[0, 0])))
-    return worst, ang, yaw
+    return pair_errors(truth, doc["result"]["m_world"], a, b)
 
 with tempfile.TemporaryDirectory() as tmp:
     stores = []
