@@ -14,6 +14,7 @@
 //! Memory is the cache budget plus a small constant: nothing loads a whole DSM.
 
 pub mod align;
+pub mod atomic;
 pub mod averaging;
 pub mod cache;
 pub mod error;

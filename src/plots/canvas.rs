@@ -206,9 +206,13 @@ impl Canvas {
         }
     }
 
+    /// Writes the PNG through a temporary name (never a partial picture).
     pub fn save(&self, path: &Path) -> Result<(), PlotError> {
-        self.img
-            .save_with_format(path, image::ImageFormat::Png)
-            .map_err(|e| PlotError(format!("{}: {e}", path.display())))
+        crate::atomic::write_atomically(path, |out| {
+            self.img
+                .write_to(out, image::ImageFormat::Png)
+                .map_err(std::io::Error::other)
+        })
+        .map_err(|e| PlotError(format!("{}: {e}", path.display())))
     }
 }

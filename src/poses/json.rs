@@ -8,7 +8,7 @@ use super::{
 use nalgebra::Matrix4;
 use serde::{Deserialize, Serialize};
 use std::collections::HashSet;
-use std::io::{BufWriter, Write};
+use std::io::Write;
 use std::path::Path;
 
 /// Mirror of the file for reading: matrices as nested lists so their shape can be
@@ -102,28 +102,12 @@ impl PosesFile {
             path: path.to_path_buf(),
             message,
         })?;
-        let io = |source| PosesError::Io {
-            path: path.to_path_buf(),
-            source,
-        };
-        let name = path.file_name().map(|n| n.to_string_lossy().into_owned());
-        let temp = path.with_file_name(format!(
-            ".{}.{}.tmp",
-            name.unwrap_or_else(|| "poses.json".into()),
-            std::process::id()
-        ));
-        let result = (|| {
-            let file = std::fs::File::create(&temp)?;
-            let mut out = BufWriter::new(file);
-            self.write_json(&mut out)?;
-            let file = out.into_inner().map_err(|e| e.into_error())?;
-            file.sync_all()?;
-            std::fs::rename(&temp, path)
-        })();
-        if result.is_err() {
-            let _ = std::fs::remove_file(&temp);
-        }
-        result.map_err(io)
+        crate::atomic::write_atomically(path, |out| self.write_json(out)).map_err(|source| {
+            PosesError::Io {
+                path: path.to_path_buf(),
+                source,
+            }
+        })
     }
 
     /// The JSON text, one pose and one edge per line.

@@ -222,9 +222,8 @@ pub fn write_group_attributes(dir: &Path, attributes: &Value) -> Result<(), Stor
     let doc = json!({"zarr_format": 3, "node_type": "group", "attributes": attributes});
     let text = serde_json::to_string_pretty(&doc).expect("json values serialize");
     let path = dir.join("zarr.json");
-    let tmp = dir.join(format!("zarr.json.tmp-{}", std::process::id()));
-    std::fs::write(&tmp, text).map_err(|e| StoreError::io(&tmp, e))?;
-    std::fs::rename(&tmp, &path).map_err(|e| StoreError::io(&path, e))
+    crate::atomic::write_bytes_atomically(&path, text.as_bytes())
+        .map_err(|e| StoreError::io(&path, e))
 }
 
 pub fn read_root(root: &Path) -> Result<RootAttrs, StoreError> {

@@ -70,6 +70,14 @@ pub enum IngestError {
     BadInput(String),
     #[error(transparent)]
     Store(#[from] StoreError),
+    /// Writing one input into the store failed (disk full, permissions...);
+    /// the store keeps the DSMs ingested before it.
+    #[error("ingesting {input}: {source}")]
+    Write {
+        input: String,
+        #[source]
+        source: StoreError,
+    },
     /// Reading a source failed for a reason other than its content.
     #[error("{0}")]
     Source(SourceError),
@@ -224,7 +232,13 @@ fn write_dsm(
     if result.is_err() {
         let _ = std::fs::remove_dir_all(&tmp);
     }
-    result
+    result.map_err(|e| match e {
+        IngestError::Store(source) => IngestError::Write {
+            input: file.path.display().to_string(),
+            source,
+        },
+        other => other,
+    })
 }
 
 fn write_levels(
@@ -239,8 +253,7 @@ fn write_levels(
     let (w, h) = (raster.width, raster.height);
     let source_info = files::source_info(&file.path)?;
     let shapes = level_shapes(w, h, settings);
-    let node = format!("/{}", tmp.file_name().unwrap_or_default().to_string_lossy());
-    let mut pyramid = PyramidWriter::create(fs.clone(), &node, &shapes, settings)?;
+    let mut pyramid = PyramidWriter::create(fs.clone(), tmp, &shapes, settings)?;
     progress.dsm_started(&file.id, h);
     let acc = stream_rows(source, settings.chunk, &mut pyramid, progress)?;
     pyramid.finish()?;

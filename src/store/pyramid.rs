@@ -72,7 +72,8 @@ pub fn downsample_rows(a: &[f32], b: Option<&[f32]>, out: &mut Vec<f32>) {
 
 struct LevelWriter {
     array: LevelArray,
-    node: String,
+    /// The level's directory, for errors that name the file.
+    dir: std::path::PathBuf,
     width: usize,
     height: u64,
     chunk: usize,
@@ -95,8 +96,7 @@ impl LevelWriter {
         let (w, c) = (self.width, self.chunk);
         let n_rows = rows.len() / w;
         let cy = self.chunk_rows_written;
-        let array = &self.array;
-        let node = &self.node;
+        let (array, dir) = (&self.array, &self.dir);
         (0..w.div_ceil(c)).into_par_iter().try_for_each(|cx| {
             let mut data = vec![f32::NAN; c * c];
             let col0 = cx * c;
@@ -106,7 +106,7 @@ impl LevelWriter {
             }
             array
                 .store_chunk(&[cy, cx as u64], data)
-                .map_err(|e| StoreError::zarr(node, format!("chunk ({cy}, {cx}): {e}")))
+                .map_err(|e| StoreError::zarr(dir.join(format!("c/{cy}/{cx}")).display(), e))
         })?;
         self.chunk_rows_written += 1;
         self.rows_written += n_rows as u64;
@@ -201,18 +201,20 @@ pub struct PyramidWriter {
 }
 
 impl PyramidWriter {
-    /// Create (and store the metadata of) every level array under `group`
-    /// (a node path like "/tile_01.tmp-123").
+    /// Create (and store the metadata of) every level array in the group
+    /// directory `group_dir` of the store (like `<store>/tile_01.tmp-123`).
     pub fn create(
         fs: Arc<FilesystemStore>,
-        group: &str,
+        group_dir: &std::path::Path,
         shapes: &[LevelMeta],
         settings: &StorageSettings,
     ) -> Result<PyramidWriter, StoreError> {
         super::configure_zarrs();
+        let group = group_dir.file_name().unwrap_or_default().to_string_lossy();
         let mut levels = Vec::with_capacity(shapes.len());
         for (k, shape) in shapes.iter().enumerate() {
-            let node = format!("{group}/{k}");
+            let node = format!("/{group}/{k}");
+            let dir = group_dir.join(k.to_string());
             let mut builder = ArrayBuilder::new(
                 vec![shape.height, shape.width],
                 vec![settings.chunk, settings.chunk],
@@ -225,13 +227,13 @@ impl PyramidWriter {
             }
             let array = builder
                 .build(fs.clone(), &node)
-                .map_err(|e| StoreError::zarr(&node, e))?;
+                .map_err(|e| StoreError::zarr(dir.display(), e))?;
             array
                 .store_metadata()
-                .map_err(|e| StoreError::zarr(&node, e))?;
+                .map_err(|e| StoreError::zarr(dir.join("zarr.json").display(), e))?;
             levels.push(LevelWriter {
                 array,
-                node,
+                dir,
                 width: shape.width as usize,
                 height: shape.height,
                 chunk: settings.chunk as usize,
@@ -267,7 +269,7 @@ impl PyramidWriter {
         for level in &self.levels {
             if level.rows_written != level.height {
                 return Err(StoreError::zarr(
-                    &level.node,
+                    level.dir.display(),
                     format!(
                         "wrote {} rows, expected {}",
                         level.rows_written, level.height

@@ -212,10 +212,8 @@ pub fn write_tile_set(
 /// Write `out_dir/truth.json` (pretty JSON) through a temporary name.
 pub fn write_truth(truth: &Truth, out_dir: &Path) -> Result<(), SynthError> {
     let path: PathBuf = out_dir.join("truth.json");
-    let tmp = out_dir.join(".truth.json.tmp");
     let text = serde_json::to_string_pretty(truth).expect("truth serialises") + "\n";
-    std::fs::write(&tmp, text)
-        .and_then(|()| std::fs::rename(&tmp, &path))
+    crate::atomic::write_bytes_atomically(&path, text.as_bytes())
         .map_err(|source| SynthError::Io { path, source })
 }
 
