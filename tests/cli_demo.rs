@@ -30,21 +30,27 @@ fn row(table: &str, name: &str) -> Row {
     }
 }
 
-#[test]
-fn demo_runs_both_collections_and_full_beats_mst_on_real_terrain() {
-    let work = tempfile::tempdir().unwrap();
+/// `dsmstream demo <args>` from the repository root; its stdout.
+fn demo(args: &[&std::ffi::OsStr]) -> String {
     let out = Command::new(env!("CARGO_BIN_EXE_dsmstream"))
         .current_dir(env!("CARGO_MANIFEST_DIR"))
-        .args(["demo", "--work"])
-        .arg(work.path())
+        .arg("demo")
+        .args(args)
         .output()
         .unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
     assert!(
         out.status.success(),
         "{}\n{stdout}",
         String::from_utf8_lossy(&out.stderr)
     );
+    stdout
+}
+
+#[test]
+fn demo_runs_both_collections_and_full_beats_mst_on_real_terrain() {
+    let work = tempfile::tempdir().unwrap();
+    let stdout = demo(&["--work".as_ref(), work.path().as_os_str()]);
     let tables: Vec<&str> = stdout.split("side by side").skip(1).collect();
     assert_eq!(tables.len(), 2, "{stdout}");
     for table in &tables {
@@ -86,19 +92,13 @@ fn fused_grid_is_closest_to_the_truth_with_the_full_graph() {
         "{}",
         String::from_utf8_lossy(&gen.stderr)
     );
-    let out = Command::new(env!("CARGO_BIN_EXE_dsmstream"))
-        .args(["demo", "--data"])
-        .arg(&tiles)
-        .arg("--work")
-        .arg(dir.path().join("work"))
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(
-        out.status.success(),
-        "{}\n{stdout}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let work = dir.path().join("work");
+    let stdout = demo(&[
+        "--data".as_ref(),
+        tiles.as_os_str(),
+        "--work".as_ref(),
+        work.as_os_str(),
+    ]);
     let table = stdout
         .split("side by side")
         .nth(1)
