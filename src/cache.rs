@@ -20,13 +20,15 @@ use lru::LruCache;
 mod data;
 pub use data::{ChunkData, MapPool, MAP_MIN_BYTES};
 
-/// Every command streams chunk-sized buffers; call this first in `main`. glibc raises its mmap threshold
-/// past the 1 MiB chunk buffers once the first
-/// one is freed, and from then on keeps freed chunks in per-thread arenas: a fuse
-/// of 64 DSMs of 4096 px with a 128 MiB cache peaked at 297 MB RSS, and at
-/// 149 MB with a fixed 128 KiB threshold (same run time). With the threshold
-/// fixed, every large buffer is its own mapping, returned to the system when
-/// freed, so the resident size follows the cache budget.
+/// Fixes glibc's mmap threshold at 128 KiB; every command calls it first in
+/// `main`. Commands stream chunk-sized buffers; glibc raises its threshold past
+/// the 1 MiB chunk buffers once the first one is freed, and from then on keeps
+/// freed chunks in per-thread arenas: a fuse of 64 DSMs of 4096 px with a
+/// 128 MiB cache peaked at 297 MB RSS, and at 149 MB with the threshold fixed
+/// (same run time). With it fixed, every large buffer is its own mapping,
+/// returned to the system when freed, so the resident size follows the cache
+/// budget (the price: page faults on every large buffer, see
+/// tools/bench_cache_results.md).
 pub fn release_large_buffers_on_free() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     {
@@ -135,7 +137,7 @@ impl ChunkCache {
 
     /// Decoded samples as chunk data, in a recycled map when one of their size
     /// is free (see [`MapPool`]). Loaders should build their chunks with this.
-    pub fn chunk_data(&self, values: &[f32]) -> ChunkData {
+    pub fn chunk_data(&self, values: Vec<f32>) -> ChunkData {
         self.pool.data(values)
     }
 

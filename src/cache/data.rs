@@ -52,29 +52,16 @@ impl MapPool {
         })
     }
 
-    /// The samples in a pooled map of their size, or a new one.
-    pub fn data(self: &Arc<MapPool>, values: &[f32]) -> ChunkData {
-        let bytes = std::mem::size_of_val(values);
-        if bytes < MAP_MIN_BYTES {
-            return ChunkData(Repr::Heap(values.to_vec()));
-        }
-        let reused = {
-            let mut maps = self.maps.lock().unwrap_or_else(|p| p.into_inner());
-            maps.iter()
-                .rposition(|m| m.len() == bytes)
-                .map(|k| maps.swap_remove(k))
-        };
-        let map = match reused {
-            Some(map) => Ok(map),
-            None => memmap2::MmapOptions::new().len(bytes).map_anon(),
-        };
-        match map {
-            Ok(map) => ChunkData::mapped(map, values, Some(self.clone())),
-            Err(e) => {
-                tracing::debug!(error = %e, "chunk map failed; kept on the heap");
-                ChunkData(Repr::Heap(values.to_vec()))
-            }
-        }
+    /// The samples as chunk data, in a pooled map of their size when one is free.
+    pub fn data(self: &Arc<MapPool>, values: Vec<f32>) -> ChunkData {
+        ChunkData::build(values, Some(self))
+    }
+
+    /// A waiting map of exactly `bytes`.
+    fn take(&self, bytes: usize) -> Option<memmap2::MmapMut> {
+        let mut maps = self.maps.lock().unwrap_or_else(|p| p.into_inner());
+        let k = maps.iter().rposition(|m| m.len() == bytes)?;
+        Some(maps.swap_remove(k))
     }
 
     fn give_back(&self, map: memmap2::MmapMut) {
@@ -96,12 +83,22 @@ impl ChunkData {
     /// Takes the samples (copied into a private anonymous map when large; if
     /// the map cannot be made the vector is kept as is).
     pub fn from_vec(values: Vec<f32>) -> ChunkData {
+        ChunkData::build(values, None)
+    }
+
+    /// Large samples into a map (from `pool` when it has one of their size;
+    /// it gets the map back when the data is dropped), small ones kept as is.
+    fn build(values: Vec<f32>, pool: Option<&Arc<MapPool>>) -> ChunkData {
         let bytes = std::mem::size_of_val(values.as_slice());
         if bytes < MAP_MIN_BYTES {
             return ChunkData(Repr::Heap(values));
         }
-        match memmap2::MmapOptions::new().len(bytes).map_anon() {
-            Ok(map) => ChunkData::mapped(map, &values, None),
+        let map = match pool.and_then(|p| p.take(bytes)) {
+            Some(map) => Ok(map),
+            None => memmap2::MmapOptions::new().len(bytes).map_anon(),
+        };
+        match map {
+            Ok(map) => ChunkData::mapped(map, &values, pool.cloned()),
             Err(e) => {
                 tracing::debug!(error = %e, "chunk map failed; kept on the heap");
                 ChunkData(Repr::Heap(values))
@@ -219,13 +216,13 @@ mod tests {
     fn dropped_maps_are_reused_up_to_the_pool_bound() {
         let n = MAP_MIN_BYTES / 4;
         let pool = MapPool::new(2 * MAP_MIN_BYTES);
-        let chunks: Vec<ChunkData> = (0..3).map(|k| pool.data(&vec![k as f32; n])).collect();
+        let chunks: Vec<ChunkData> = (0..3).map(|k| pool.data(vec![k as f32; n])).collect();
         assert!(chunks.iter().all(ChunkData::is_mapped));
         let addresses: Vec<*const f32> = chunks.iter().map(|c| c.as_ptr()).collect();
         drop(chunks);
         // two fit in the pool, the third was unmapped
         assert_eq!(pool.held_bytes(), 2 * MAP_MIN_BYTES);
-        let again = pool.data(&vec![7.0; n]);
+        let again = pool.data(vec![7.0; n]);
         assert!(addresses.contains(&again.as_ptr()));
         assert!(
             again.iter().all(|&v| v == 7.0),
@@ -233,7 +230,7 @@ mod tests {
         );
         assert_eq!(pool.held_bytes(), MAP_MIN_BYTES);
         // another size does not take a pooled map
-        let other = pool.data(&vec![1.0; n + 1024]);
+        let other = pool.data(vec![1.0; n + 1024]);
         assert!(!addresses.contains(&other.as_ptr()));
         assert_eq!(pool.held_bytes(), MAP_MIN_BYTES);
     }

@@ -130,7 +130,7 @@ impl<'a> StoreGrid<'a> {
             Ok(Chunk {
                 width: side,
                 height: side,
-                data: cache.chunk_data(&data),
+                data: cache.chunk_data(data),
             })
         });
         loaded.unwrap_or_else(|message| {
