@@ -3,6 +3,8 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+mod common;
+
 fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_dsmstream"))
 }
@@ -212,18 +214,7 @@ fn pair_refuses_an_overlap_that_is_all_no_data() {
 /// A generated collection (`dsmgen tiles` with `layout_args`), ingested, with its truth.
 fn generated(dir: &Path, layout_args: &[&str]) -> (PathBuf, dsmstream::synth::output::Truth) {
     let tiles = dir.join("tiles");
-    let gen = Command::new(env!("CARGO_BIN_EXE_dsmgen"))
-        .arg("tiles")
-        .args(layout_args)
-        .arg("--out")
-        .arg(&tiles)
-        .output()
-        .unwrap();
-    assert!(
-        gen.status.success(),
-        "{}",
-        String::from_utf8_lossy(&gen.stderr)
-    );
+    common::dsmgen_tiles(layout_args, &tiles);
     let store = dir.join("c.zarr");
     ingest(std::slice::from_ref(&tiles), &store);
     let truth = dsmstream::synth::output::Truth::load(&tiles.join("truth.json")).unwrap();

@@ -6,6 +6,8 @@
 
 use std::process::Command;
 
+mod common;
+
 /// One row of a side-by-side table: pairs rmse_tau, fused-truth rmse_tau and NMAD.
 struct Row {
     pairs_rmse: f64,
@@ -81,16 +83,11 @@ fn demo_runs_both_collections_and_full_beats_mst_on_real_terrain() {
 fn fused_grid_is_closest_to_the_truth_with_the_full_graph() {
     let dir = tempfile::tempdir().unwrap();
     let tiles = dir.path().join("tiles");
-    let gen = Command::new(env!("CARGO_BIN_EXE_dsmgen"))
-        .args(["tiles", "--layout", "grid", "--rows", "4", "--cols", "4"])
-        .args(["--size", "384", "--seed", "12", "--out"])
-        .arg(&tiles)
-        .output()
-        .unwrap();
-    assert!(
-        gen.status.success(),
-        "{}",
-        String::from_utf8_lossy(&gen.stderr)
+    common::dsmgen_tiles(
+        &[
+            "--layout", "grid", "--rows", "4", "--cols", "4", "--size", "384", "--seed", "12",
+        ],
+        &tiles,
     );
     let work = dir.path().join("work");
     let stdout = demo(&[

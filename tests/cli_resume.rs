@@ -11,6 +11,8 @@ use std::time::{Duration, Instant};
 
 use dsmstream::poses::PosesFile;
 
+mod common;
+
 fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_dsmstream"))
 }
@@ -97,11 +99,12 @@ fn complete_lines(text: &str) -> Vec<&str> {
 /// with the poses of one uninterrupted run.
 fn slow_collection(dir: &Path) -> (PathBuf, PosesFile, usize) {
     let tiles = dir.join("tiles");
-    let mut gen = Command::new(env!("CARGO_BIN_EXE_dsmgen"));
-    gen.args(["tiles", "--layout", "grid", "--rows", "3", "--cols", "3"])
-        .args(["--size", "384", "--seed", "5", "--out"])
-        .arg(&tiles);
-    run_ok(gen);
+    common::dsmgen_tiles(
+        &[
+            "--layout", "grid", "--rows", "3", "--cols", "3", "--size", "384", "--seed", "5",
+        ],
+        &tiles,
+    );
     let store = dir.join("grid.zarr");
     let mut ingest = bin();
     ingest.arg("ingest").arg(&tiles).arg("--store").arg(&store);
