@@ -77,7 +77,6 @@ impl Components {
 
 #[cfg(test)]
 mod tests {
-    use super::*;
     use crate::graph::fixtures::{edge, pose};
     use crate::graph::PoseGraph;
 

@@ -182,6 +182,9 @@ impl Journal {
     }
 }
 
+/// The text of a journal's complete records, and each record with its line number.
+type Journaled = (String, Vec<(usize, EdgeRecord)>);
+
 /// The complete records of a journal written with `settings`, with their line
 /// numbers (1 = header), and their text; None when the file is missing or
 /// empty. Reading stops at the first line that does not parse (a torn write:
@@ -189,7 +192,7 @@ impl Journal {
 fn read_records(
     path: &Path,
     settings: &str,
-) -> Result<Option<(String, Vec<(usize, EdgeRecord)>)>, JournalError> {
+) -> Result<Option<Journaled>, JournalError> {
     let io = |source| JournalError::Io {
         path: path.display().to_string(),
         source,
