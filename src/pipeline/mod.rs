@@ -5,8 +5,8 @@
 //! overviews, runs DSM-ICP through the one shared chunk cache and sends a
 //! [`PairOutcome`] keyed by DSM indices; the sink (the calling thread) appends
 //! it to the journal and reports progress. Bounded channels give backpressure,
-//! so memory is the cache budget plus a few messages and the chunks the grids
-//! pin ([`memory`]).
+//! so memory is the cache budget (which also covers the chunks the grids pin:
+//! [`memory`]) plus a few messages.
 //!
 //! Threads live here, in one place: the workers run every pair inside one rayon
 //! pool of `threads` threads (`pool.install`), so the data-parallel parts of ICP
