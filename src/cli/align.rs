@@ -3,9 +3,10 @@
 
 use std::path::PathBuf;
 
-use dsmstream::align::{align, AlignConfig, AlignError};
+use dsmstream::align::{align, AlignConfig, AlignOutcome};
 use dsmstream::cache::ChunkCache;
 use dsmstream::graph::Weighting;
+use dsmstream::pipeline::memory::{pinned_bytes_per_thread, plan_memory};
 use dsmstream::pipeline::PipelineConfig;
 use dsmstream::poses::GraphKind;
 use dsmstream::InputError;
@@ -37,10 +38,12 @@ pub struct Args {
     /// Where to write poses.json (written to a temporary name, then renamed).
     #[arg(long)]
     pub out: PathBuf,
-    /// Chunk cache budget in MiB, shared by all workers.
+    /// Memory budget of the chunks in MiB, shared by all workers: the cache plus
+    /// the chunks each thread's grids pin.
     #[arg(long, default_value_t = 256)]
     pub cache_mb: usize,
-    /// ICP worker threads (default: all cores).
+    /// Threads of the whole registration (default: all cores, as many as the
+    /// cache budget allows); bounds the CPUs used.
     #[arg(long)]
     pub threads: Option<usize>,
     /// full (motion averaging) or mst (greedy spanning tree baseline).
@@ -66,15 +69,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if !(0.0..=1.0).contains(&args.min_overlap) {
         return Err(InputError::new("--min-overlap must be within [0, 1]").into());
     }
-    let threads = args
-        .threads
-        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
-    if threads == 0 {
+    if args.threads == Some(0) {
         return Err(InputError::new("--threads must be at least 1").into());
     }
+    let store = open_store(&args.store)?;
+    let memory = plan_memory(
+        args.cache_mb.max(1) << 20,
+        pinned_bytes_per_thread(&store),
+        super::threads_or_all(args.threads),
+        args.threads.is_some(),
+    )
+    .map_err(InputError::new)?;
     let config = AlignConfig {
         pipeline: PipelineConfig {
-            threads,
+            threads: memory.threads,
             icp: args.icp.to_config()?,
             min_overlap: args.min_overlap,
         },
@@ -90,18 +98,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         resume: args.resume,
         output: args.out.clone(),
     };
-    let store = open_store(&args.store)?;
-    let cache = ChunkCache::new(args.cache_mb.max(1) << 20);
-    let bar = ProgressBar::with_draw_target(Some(0), ProgressDrawTarget::stderr());
-    bar.set_style(
-        ProgressStyle::with_template("{bar:30} {pos}/{len} pairs {per_sec} eta {eta} {msg}")
-            .expect("valid template"),
+    tracing::info!(
+        threads = memory.threads,
+        cache_mb = memory.cache_budget_bytes >> 20,
+        pinned_mb = memory.pinned_bytes >> 20,
+        "memory planned"
     );
-    if tracing::enabled!(tracing::Level::ERROR) && !tracing::enabled!(tracing::Level::WARN) {
-        bar.set_draw_target(ProgressDrawTarget::hidden());
-    }
+    let cache = ChunkCache::new(memory.cache_budget_bytes);
+    let bar = progress_bar();
     let started = std::time::Instant::now();
-    let outcome = align(&store, &cache, &config, &mut |_, done, total| {
+    let outcome = align(&store, &cache, &config, &mut |done, total| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);
         let s = cache.stats();
@@ -112,25 +118,41 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ));
     });
     bar.finish_and_clear();
-    let outcome = outcome.map_err(|e| match e {
-        AlignError::Input(m) => anyhow::Error::new(InputError::new(m)),
-        other => anyhow::Error::new(other),
+    let outcome = outcome.map_err(|e| {
+        if e.is_bad_input() {
+            anyhow::Error::new(InputError::new(e.to_string()))
+        } else {
+            anyhow::Error::new(e)
+        }
     })?;
     cache.log_stats();
     outcome.poses.write(&args.out)?;
-    let failed: Vec<String> = outcome
-        .records
-        .iter()
-        .filter(|r| r.failed(args.min_overlap))
-        .map(|r| format!("{}-{} ({})", r.reference, r.moving, r.why_no_edge()))
-        .collect();
-    for f in &failed {
-        eprintln!("warning: pair {f} gave no edge");
+    print_summary(&outcome, &args.out, started.elapsed().as_secs_f64());
+    Ok(())
+}
+
+fn progress_bar() -> ProgressBar {
+    let bar = ProgressBar::with_draw_target(Some(0), ProgressDrawTarget::stderr());
+    bar.set_style(
+        ProgressStyle::with_template("{bar:30} {pos}/{len} pairs {per_sec} eta {eta} {msg}")
+            .expect("valid template"),
+    );
+    if tracing::enabled!(tracing::Level::ERROR) && !tracing::enabled!(tracing::Level::WARN) {
+        bar.set_draw_target(ProgressDrawTarget::hidden());
     }
-    if outcome.weights != config.weights && matches!(config.graph, GraphKind::Full) {
+    bar
+}
+
+/// The warnings (stderr) and the summary (stdout) of a finished run.
+fn print_summary(outcome: &AlignOutcome, out: &std::path::Path, seconds: f64) {
+    for f in &outcome.failed_pairs {
         eprintln!(
-            "warning: some pairs have no standard errors (journaled by an older version, or --metric point-to-point): paper weights used"
+            "warning: pair {}-{} ({}) gave no edge",
+            f.reference, f.moving, f.why
         );
+    }
+    if let Some(warning) = outcome.weights_warning() {
+        eprintln!("warning: {warning}");
     }
     if outcome.components.len() > 1 {
         eprintln!(
@@ -142,27 +164,33 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
     }
     let p = &outcome.poses;
+    let c = outcome.counts;
     let kept: Vec<&dsmstream::poses::EdgeEntry> = p.edges.iter().filter(|e| !e.dropped).collect();
     let mean_rmse = kept.iter().map(|e| e.rmse_m).sum::<f64>() / kept.len().max(1) as f64;
     let max_res = kept.iter().map(|e| e.residual_m).fold(0.0, f64::max);
+    let (edges, graph, solved) = match c.tree_edges {
+        Some(tree) => (
+            format!("{tree} tree edges of {} registered pairs", c.edges),
+            "mst".to_string(),
+            "of the chained poses",
+        ),
+        None => (
+            format!(
+                "{} edges ({} dropped, {} down-weighted)",
+                c.edges, c.dropped, c.downweighted
+            ),
+            format!("full, weights {}", outcome.weights.used.label()),
+            "after averaging",
+        ),
+    };
     println!(
-        "aligned {} DSMs: {} edges ({} dropped), {} pairs without edge, graph {}{}, gauge {}, {:.1} s",
+        "aligned {} DSMs: {edges}, {} pairs without edge, graph {graph}, gauge {}, {seconds:.1} s",
         p.poses.len(),
-        p.edges.len(),
-        p.edges.len() - kept.len(),
-        failed.len(),
-        match p.graph {
-            GraphKind::Full => "full",
-            GraphKind::Mst => "mst",
-        },
-        match p.graph {
-            GraphKind::Full => format!(", weights {}", outcome.weights.label()),
-            GraphKind::Mst => String::new(),
-        },
+        outcome.failed_pairs.len(),
         p.gauge.label(),
-        started.elapsed().as_secs_f64()
     );
-    println!("mean pairwise ICP rmse {mean_rmse:.3} m; largest edge residual after averaging {max_res:.3} m");
-    println!("poses written to {}", args.out.display());
-    Ok(())
+    println!(
+        "mean pairwise ICP rmse {mean_rmse:.3} m; largest edge residual {solved} {max_res:.3} m"
+    );
+    println!("poses written to {}", out.display());
 }

@@ -1,0 +1,141 @@
+//! The result of `align` for the user: the poses.json model in world
+//! coordinates (each edge joined to its pair's ICP statistics by index), the
+//! pairs without edge, and the counts the summary prints ([`EdgeCounts`]).
+
+use std::collections::HashSet;
+
+use super::scene::{SceneGraph, WeightsUsed};
+use super::solve::PoseSolution;
+use super::AlignConfig;
+use crate::icp::IcpStatus;
+use crate::pipeline::PairOutcome;
+use crate::poses::rigid::to_world;
+use crate::poses::{EdgeEntry, GaugeLabel, PoseEntry, PosesFile};
+use crate::store::Store;
+
+/// A pair that should have given an edge and did not.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FailedPair {
+    pub reference: String,
+    pub moving: String,
+    pub why: String,
+}
+
+/// How many edges the graph had and what the solve did with them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct EdgeCounts {
+    /// Registered pairs: the edges of the full graph.
+    pub edges: usize,
+    /// Edges of the spanning tree (`--graph mst`), None for motion averaging.
+    pub tree_edges: Option<usize>,
+    /// Rejected as outliers by the robust averaging.
+    pub dropped: usize,
+    /// Kept at a lower weight by the robust averaging.
+    pub downweighted: usize,
+}
+
+/// Everything the report is built from.
+pub struct Parts<'a> {
+    pub store: &'a Store,
+    pub config: &'a AlignConfig,
+    pub anchor: Option<usize>,
+    pub outcomes: &'a [PairOutcome],
+    pub scene: &'a SceneGraph,
+    pub solution: &'a PoseSolution,
+}
+
+/// The poses file of a solved run.
+pub fn poses_file(parts: &Parts<'_>) -> PosesFile {
+    let dsms = parts.store.dsms();
+    let (scene, solution) = (parts.scene, parts.solution);
+    let poses = solution
+        .poses_local
+        .iter()
+        .enumerate()
+        .map(|(k, m)| PoseEntry {
+            id: dsms[k].id.clone(),
+            matrix_world: to_world(m, &scene.origin_world),
+        })
+        .collect();
+    let dropped: HashSet<usize> = solution.dropped.iter().copied().collect();
+    let edges = scene
+        .graph
+        .edges
+        .iter()
+        .enumerate()
+        .map(|(k, e)| {
+            let fit = parts.outcomes[scene.outcome_of_edge[k]]
+                .edge_fit()
+                .expect("graph edges come from registered pairs");
+            EdgeEntry {
+                i: dsms[e.i].id.clone(),
+                j: dsms[e.j].id.clone(),
+                overlap: e.overlap,
+                rmse_m: e.rmse_m,
+                weight: e.weight,
+                translation_weight: Some(e.translation_weight),
+                iterations: fit.iterations as u32,
+                inliers: fit.inliers as u64,
+                residual_m: solution.residuals[k].translation_m,
+                residual_deg: solution.residuals[k].rotation_deg,
+                dropped: dropped.contains(&k),
+                converged: fit.status == IcpStatus::Converged,
+            }
+        })
+        .collect();
+    let components = component_ids(parts.store, solution);
+    PosesFile {
+        crs: parts.store.crs().map(|c| c.label()).unwrap_or_default(),
+        poses,
+        edges,
+        graph: parts.config.graph,
+        gauge: parts
+            .anchor
+            .map_or(GaugeLabel::Mean, |a| GaugeLabel::Anchor(dsms[a].id.clone())),
+        components: (components.len() > 1).then_some(components),
+        summary: solution.summary.clone(),
+    }
+}
+
+/// The connected components as lists of ids.
+pub fn component_ids(store: &Store, solution: &PoseSolution) -> Vec<Vec<String>> {
+    let dsms = store.dsms();
+    solution
+        .components
+        .iter()
+        .map(|c| c.iter().map(|&k| dsms[k].id.clone()).collect())
+        .collect()
+}
+
+/// Pairs that failed (not the ones below `--min-overlap`), with the reason.
+pub fn failed_pairs(store: &Store, outcomes: &[PairOutcome]) -> Vec<FailedPair> {
+    let dsms = store.dsms();
+    outcomes
+        .iter()
+        .filter(|o| matches!(o, PairOutcome::Failed { .. }))
+        .map(|o| FailedPair {
+            reference: dsms[o.pair().reference].id.clone(),
+            moving: dsms[o.pair().moving].id.clone(),
+            why: o.why_no_edge().unwrap_or_default(),
+        })
+        .collect()
+}
+
+/// The edge counts of a solve.
+pub fn edge_counts(scene: &SceneGraph, solution: &PoseSolution) -> EdgeCounts {
+    EdgeCounts {
+        edges: scene.graph.edges.len(),
+        tree_edges: solution.tree.as_ref().map(Vec::len),
+        dropped: solution.dropped.len(),
+        downweighted: solution.downweighted.len(),
+    }
+}
+
+/// One warning when the weights are not the requested ones (motion averaging
+/// only: the spanning tree does not use them).
+pub fn weights_warning(weights: &WeightsUsed, tree: bool) -> Option<String> {
+    weights.fallback.as_ref().filter(|_| !tree)?;
+    Some(
+        "some pairs have no standard errors (journaled by an older version, or --metric point-to-point): paper weights used".into(),
+    )
+}

@@ -1,0 +1,144 @@
+//! From pair outcomes to the scene graph: one edge per registered pair, in a
+//! local frame near the data (UTM coordinates are ~10^6 m), with the edge
+//! weights. The weight fallback (information weights need every edge's
+//! standard errors; the paper's are used when one has none) is decided here,
+//! once, and carried to the report as [`WeightsUsed`].
+
+use nalgebra::Vector3;
+
+use super::{AlignConfig, AlignError};
+use crate::graph::{information_weights, paper_weights, Edge, EdgeSigma, PoseGraph, Weighting};
+use crate::pipeline::{IcpFit, PairOutcome, PairTask};
+use crate::poses::rigid::to_local;
+use crate::store::Store;
+
+/// The weights the averaging got, and why they differ from the requested ones.
+#[derive(Clone, Debug, PartialEq)]
+pub struct WeightsUsed {
+    pub requested: Weighting,
+    pub used: Weighting,
+    /// Why the paper's weights replaced the information weights.
+    pub fallback: Option<String>,
+}
+
+/// The scene graph of one run.
+#[derive(Clone, Debug)]
+pub struct SceneGraph {
+    /// Edges in the local frame, weighted.
+    pub graph: PoseGraph,
+    /// For edge k, the index of its pair in the outcome list.
+    pub outcome_of_edge: Vec<usize>,
+    /// World position of the local frame's origin.
+    pub origin_world: Vector3<f64>,
+    pub weights: WeightsUsed,
+}
+
+/// One edge per registered pair, weighted; an error when no pair registered.
+pub fn build_graph(
+    store: &Store,
+    outcomes: &[PairOutcome],
+    config: &AlignConfig,
+) -> Result<SceneGraph, AlignError> {
+    let origin_world = local_origin(store);
+    let mut graph = PoseGraph::new(store.dsms().len());
+    let mut outcome_of_edge = Vec::new();
+    for (k, outcome) in outcomes.iter().enumerate() {
+        if let PairOutcome::Registered { pair, overlap, fit } = outcome {
+            graph
+                .edges
+                .push(edge(store, *pair, *overlap, fit, &origin_world));
+            outcome_of_edge.push(k);
+        }
+    }
+    if graph.edges.is_empty() {
+        return Err(no_edge_error(store, outcomes, config.pipeline.min_overlap));
+    }
+    let weights = weigh(&mut graph.edges, config.weights);
+    Ok(SceneGraph {
+        graph,
+        outcome_of_edge,
+        origin_world,
+        weights,
+    })
+}
+
+/// The requested weights, or the paper's when an edge has no standard errors.
+fn weigh(edges: &mut [Edge], requested: Weighting) -> WeightsUsed {
+    let fallback = match requested {
+        Weighting::Information => information_weights(edges).err().map(|e| e.to_string()),
+        Weighting::Paper => None,
+    };
+    let used = if requested == Weighting::Paper || fallback.is_some() {
+        paper_weights(edges);
+        Weighting::Paper
+    } else {
+        Weighting::Information
+    };
+    WeightsUsed {
+        requested,
+        used,
+        fallback,
+    }
+}
+
+/// Why there is no graph: no pair above `--min-overlap`, or none registered.
+fn no_edge_error(store: &Store, outcomes: &[PairOutcome], min_overlap: f64) -> AlignError {
+    let root = store.root().display();
+    let above: Vec<&PairOutcome> = outcomes
+        .iter()
+        .filter(|o| !matches!(o, PairOutcome::BelowOverlap { .. }))
+        .collect();
+    AlignError::Input(match above.first() {
+        None => format!("{root}: no pair overlaps by at least --min-overlap {min_overlap}"),
+        Some(first) => {
+            let pair = first.pair();
+            let dsms = store.dsms();
+            format!(
+                "{root}: none of the {} overlapping pairs registered (first: {}-{}: {})",
+                above.len(),
+                dsms[pair.reference].id,
+                dsms[pair.moving].id,
+                first.why_no_edge().unwrap_or_default()
+            )
+        }
+    })
+}
+
+/// The graph edge of a registered pair, in the local frame: M_ij, its standard
+/// errors ([`EdgeSigma::from_fit`]), and the centre of the two footprints'
+/// intersection at the mean height as the point where its translation was measured.
+fn edge(
+    store: &Store,
+    pair: PairTask,
+    overlap: f64,
+    fit: &IcpFit,
+    origin_world: &Vector3<f64>,
+) -> Edge {
+    let (i, j) = (pair.reference, pair.moving);
+    let (a, b) = (&store.dsms()[i], &store.dsms()[j]);
+    let (fa, fb) = (a.footprint, b.footprint);
+    let centre_world = Vector3::new(
+        (fa[0].max(fb[0]) + fa[2].min(fb[2])) / 2.0,
+        (fa[1].max(fb[1]) + fa[3].min(fb[3])) / 2.0,
+        (a.height_stats.mean + b.height_stats.mean) / 2.0,
+    );
+    let m_ij_local = to_local(&fit.t_ref_moving_world, origin_world);
+    Edge {
+        sigma: fit.sigma.map(|s| EdgeSigma::from_fit(&s, overlap)),
+        centre_j: centre_world - origin_world,
+        ..Edge::new(i, j, m_ij_local, overlap, fit.rmse_m)
+    }
+}
+
+/// Centre of all footprints at the mean height: edges and poses are solved
+/// relative to it.
+fn local_origin(store: &Store) -> Vector3<f64> {
+    let n = store.dsms().len() as f64;
+    let (mut x, mut y, mut z) = (0.0, 0.0, 0.0);
+    for d in store.dsms() {
+        x += (d.footprint[0] + d.footprint[2]) / 2.0 / n;
+        y += (d.footprint[1] + d.footprint[3]) / 2.0 / n;
+        z += d.height_stats.mean / n;
+    }
+    Vector3::new(x.round(), y.round(), z.round())
+}

@@ -1,0 +1,114 @@
+//! Before any pair is registered: the checks of the store, the anchor and the
+//! output path, the planned pairs, the output lock and the journal (fresh, or
+//! resumed with the pairs it already holds).
+
+use std::collections::HashSet;
+
+use super::{AlignConfig, AlignError};
+use crate::journal::{DsmIds, Journal, OutputLock};
+use crate::pipeline::{PairOutcome, PairTask};
+use crate::plan::{candidate_pairs, Footprint};
+use crate::store::Store;
+
+/// What `align` will do: the pairs to register and the DSM kept fixed.
+#[derive(Clone, Debug)]
+pub struct AlignPlan {
+    /// Candidate pairs (overlapping footprints) in Morton order.
+    pub tasks: Vec<PairTask>,
+    /// Index of the DSM that stays fixed; None = mean gauge.
+    pub anchor: Option<usize>,
+}
+
+/// Checks the store, the anchor and the output path, and plans the pairs.
+pub fn plan(store: &Store, config: &AlignConfig) -> Result<AlignPlan, AlignError> {
+    let dsms = store.dsms();
+    let root = store.root().display();
+    match dsms.len() {
+        0 => {
+            return Err(AlignError::Input(format!(
+                "{root}: the store holds no DSM; run `dsmstream ingest` first"
+            )))
+        }
+        1 => {
+            return Err(AlignError::Input(format!(
+                "{root}: the store holds one DSM; align needs at least two"
+            )))
+        }
+        _ => {}
+    }
+    let anchor = match &config.anchor {
+        Some(id) => Some(store.find(id).ok_or_else(|| {
+            AlignError::Input(format!("{root}: --anchor: no DSM with id '{id}'"))
+        })?),
+        None => None,
+    };
+    check_output(&config.output)?;
+    let footprints: Vec<Footprint> = dsms
+        .iter()
+        .enumerate()
+        .map(|(index, d)| Footprint {
+            index,
+            bounds: d.footprint,
+        })
+        .collect();
+    let tasks: Vec<PairTask> = candidate_pairs(&footprints)
+        .into_iter()
+        .map(|(reference, moving)| PairTask { reference, moving })
+        .collect();
+    if tasks.is_empty() {
+        return Err(AlignError::Input(format!(
+            "{root}: no two DSM footprints overlap"
+        )));
+    }
+    Ok(AlignPlan { tasks, anchor })
+}
+
+/// `--out` must name a file in an existing folder: refused before any work.
+fn check_output(output: &std::path::Path) -> Result<(), AlignError> {
+    let shown = output.display();
+    if output.is_dir() {
+        return Err(AlignError::Input(format!(
+            "--out {shown}: is a directory; give the path of the poses file to write"
+        )));
+    }
+    let parent = match output.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => std::path::Path::new("."),
+    };
+    if !parent.is_dir() {
+        return Err(AlignError::Input(format!(
+            "--out {shown}: the folder {} does not exist",
+            parent.display()
+        )));
+    }
+    Ok(())
+}
+
+/// Takes the output lock, then opens the journal: a fresh one, or with
+/// `--resume` the existing one and the pairs it already holds.
+pub fn open_journal(
+    store: &Store,
+    plan: &AlignPlan,
+    config: &AlignConfig,
+) -> Result<(OutputLock, Journal, Vec<PairOutcome>), AlignError> {
+    let lock = OutputLock::acquire(&config.output)?;
+    let path = Journal::path_for(&config.output);
+    let settings = format!(
+        "{:?} min_overlap={}",
+        config.pipeline.icp, config.pipeline.min_overlap
+    );
+    let ids = DsmIds::new(store.dsms().iter().map(|d| d.id.clone()).collect());
+    let (journal, done) = if config.resume {
+        let planned: HashSet<PairTask> = plan.tasks.iter().copied().collect();
+        Journal::resume(
+            &path,
+            &settings,
+            ids,
+            &|p| planned.contains(&p),
+            config.pipeline.min_overlap,
+        )?
+    } else {
+        (Journal::create(&path, &settings, ids)?, Vec::new())
+    };
+    Ok((lock, journal, done))
+}

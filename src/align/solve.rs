@@ -1,0 +1,89 @@
+//! Poses from the scene graph, two ways: motion averaging over every edge
+//! (`--graph full`, robust: outliers dropped or down-weighted), or the greedy
+//! baseline, poses chained along the maximum-overlap spanning tree
+//! (`--graph mst`). Both give a [`PoseSolution`] in the graph's local frame.
+
+use nalgebra::Matrix4;
+
+use super::scene::SceneGraph;
+use super::AlignError;
+use crate::averaging::{average, edge_residuals, fix_gauge, AveragingOptions, EdgeResidual, Gauge};
+use crate::graph::{chain_poses, mst, Weighting};
+use crate::poses::{GraphKind, PosesSummary};
+
+/// Poses of every DSM and how each edge agrees with them.
+#[derive(Clone, Debug)]
+pub struct PoseSolution {
+    /// M_k in the graph's local frame, gauge fixed per component.
+    pub poses_local: Vec<Matrix4<f64>>,
+    /// One per graph edge, against the poses.
+    pub residuals: Vec<EdgeResidual>,
+    /// Edges the robust averaging rejected (ascending).
+    pub dropped: Vec<usize>,
+    /// Outlier edges kept at a lower weight (they hold a component together).
+    pub downweighted: Vec<usize>,
+    /// The spanning tree's edges (`--graph mst`); None for motion averaging.
+    pub tree: Option<Vec<usize>>,
+    /// Connected components (node indices, each ascending).
+    pub components: Vec<Vec<usize>>,
+    /// Totals of the averaging (None for the spanning tree).
+    pub summary: Option<PosesSummary>,
+}
+
+/// Solves the poses of `scene` with the chosen graph and gauge.
+pub fn solve(
+    scene: &SceneGraph,
+    graph: GraphKind,
+    anchor: Option<usize>,
+) -> Result<PoseSolution, AlignError> {
+    match graph {
+        GraphKind::Full => solve_full(scene, anchor),
+        GraphKind::Mst => solve_mst(scene, anchor),
+    }
+}
+
+fn solve_full(scene: &SceneGraph, anchor: Option<usize>) -> Result<PoseSolution, AlignError> {
+    let weights = scene.weights.used;
+    let options = AveragingOptions {
+        gauge: anchor.map_or(Gauge::Mean, Gauge::Anchor),
+        // Residuals in sigmas only with the weights that trust the sigmas.
+        outlier_by_sigma: weights == Weighting::Information,
+        ..AveragingOptions::default()
+    };
+    let result =
+        average(&scene.graph, &options).map_err(|e| AlignError::Averaging(e.to_string()))?;
+    let summary = PosesSummary {
+        weights: Some(weights),
+        ..PosesSummary::from_result(&result)
+    };
+    Ok(PoseSolution {
+        poses_local: result.poses,
+        residuals: result.edge_residuals,
+        dropped: result.dropped_edges,
+        downweighted: result.downweighted_edges,
+        tree: None,
+        components: result.components,
+        summary: Some(summary),
+    })
+}
+
+fn solve_mst(scene: &SceneGraph, anchor: Option<usize>) -> Result<PoseSolution, AlignError> {
+    let graph = &scene.graph;
+    let tree = mst(graph);
+    let mut poses = chain_poses(graph, &tree, anchor.unwrap_or(0))
+        .map_err(|e| AlignError::Averaging(e.to_string()))?;
+    let components = graph.components().members;
+    for members in &components {
+        fix_gauge(&mut poses, members, anchor.filter(|a| members.contains(a)));
+    }
+    let residuals = edge_residuals(graph, &poses);
+    Ok(PoseSolution {
+        poses_local: poses,
+        residuals,
+        dropped: Vec::new(),
+        downweighted: Vec::new(),
+        tree: Some(tree),
+        components,
+        summary: None,
+    })
+}

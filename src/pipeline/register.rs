@@ -1,0 +1,95 @@
+//! One pair through the worker: score the overlap on the overviews and, if it
+//! is large enough, register it with DSM-ICP through the shared chunk cache.
+
+use super::outcome::{Failure, IcpFit, PairOutcome, PairTask};
+use super::PipelineConfig;
+use crate::cache::ChunkCache;
+use crate::grid::{Grid, Pyramid};
+use crate::icp::register;
+use crate::plan::{overlap_score, scoring_level};
+use crate::store::{DsmMeta, Store, StorePyramid};
+
+/// Scores one pair on the overviews and, if it overlaps enough, registers it.
+#[tracing::instrument(level = "debug", skip_all, fields(reference = pair.reference, moving = pair.moving))]
+pub fn register_pair(
+    store: &Store,
+    cache: &ChunkCache,
+    pair: PairTask,
+    config: &PipelineConfig,
+) -> PairOutcome {
+    let dsms = store.dsms();
+    let (ri, mi) = (&dsms[pair.reference], &dsms[pair.moving]);
+    let reference = StorePyramid::new(store, cache, pair.reference);
+    let moving = StorePyramid::new(store, cache, pair.moving);
+    let overlap = match score(&reference, &moving, ri, mi) {
+        Ok(s) => s,
+        Err(e) => {
+            tracing::warn!(reference = %ri.id, moving = %mi.id, error = %e, "pair failed");
+            return PairOutcome::Failed {
+                pair,
+                overlap: f64::NAN,
+                failure: Failure::Error(format!("overlap scoring failed: {e}")),
+            };
+        }
+    };
+    if overlap < config.min_overlap {
+        return PairOutcome::BelowOverlap { pair, overlap };
+    }
+    match register(&reference, &moving, &config.icp) {
+        Ok(r) => {
+            tracing::debug!(reference = %ri.id, moving = %mi.id, rmse_m = r.rmse_m, status = ?r.status, "pair aligned");
+            let fit = IcpFit {
+                status: r.status,
+                t_ref_moving_world: r.m_world,
+                rmse_m: r.rmse_m,
+                inliers: r.inliers,
+                iterations: r.iterations,
+                sigma: Some(r.sigma),
+            };
+            if fit.usable() {
+                PairOutcome::Registered { pair, overlap, fit }
+            } else {
+                let failure = Failure::Ended(fit);
+                PairOutcome::Failed {
+                    pair,
+                    overlap,
+                    failure,
+                }
+            }
+        }
+        Err(e) => {
+            tracing::warn!(reference = %ri.id, moving = %mi.id, error = %e, "pair failed");
+            PairOutcome::Failed {
+                pair,
+                overlap,
+                failure: Failure::Error(e.to_string()),
+            }
+        }
+    }
+}
+
+/// s_ij on a common level: the coarser of the two DSMs' scoring levels.
+fn score(
+    reference: &StorePyramid<'_>,
+    moving: &StorePyramid<'_>,
+    ri: &DsmMeta,
+    mi: &DsmMeta,
+) -> Result<f64, String> {
+    let sizes = |m: &DsmMeta| {
+        m.levels
+            .iter()
+            .map(|l| (l.width, l.height))
+            .collect::<Vec<_>>()
+    };
+    let level = scoring_level(&sizes(ri))
+        .max(scoring_level(&sizes(mi)))
+        .min(ri.levels.len().min(mi.levels.len()) - 1);
+    let mut a = reference.open_level(level)?;
+    let mut b = moving.open_level(level)?;
+    let s = overlap_score(&mut a, &mut b);
+    // A chunk that failed to decode reads as no-data: say so, not "no overlap".
+    match a.take_error().or_else(|| b.take_error()) {
+        Some(e) => Err(e),
+        None => Ok(s),
+    }
+}
