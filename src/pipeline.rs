@@ -136,7 +136,7 @@ pub fn register_pair(
         Ok(r) => {
             tracing::debug!(reference = %ri.id, moving = %mi.id, rmse_m = r.rmse_m, status = ?r.status, "pair aligned");
             record.status = Some(r.status);
-            record.m_world = Some(matrix_rows(&r.m_world));
+            record.m_world = Some(matrix_rows(&r.t_ref_moving));
             record.rmse_m = r.rmse_m;
             record.inliers = r.inliers;
             record.iterations = r.iterations;

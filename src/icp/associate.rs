@@ -40,20 +40,44 @@ pub fn block_order(points: &mut [Vector3<f64>], frame: &PixelFrame, block_px: i6
     });
 }
 
+/// What the correspondence step needs of one level: the reference pyramid and
+/// level, that level's lattice in the local frame, the outlier distance and the metric.
+pub struct Matcher<'a, P> {
+    pub reference: &'a P,
+    pub level: usize,
+    pub frame: PixelFrame,
+    pub tau_m: f64,
+    pub metric: Metric,
+}
+
+impl<P: Pyramid> Matcher<'_, P> {
+    /// [`associate`] on this level.
+    pub fn associate(
+        &self,
+        points: &[Vector3<f64>],
+        memo: &mut [PlaneMemo],
+        t_ref_moving: &Isometry3<f64>,
+    ) -> Result<Association, String> {
+        associate(self, points, memo, t_ref_moving)
+    }
+}
+
 /// Matches `points` (moving frame) mapped by `t_ref_moving`. `memo` holds one
 /// entry per point (point-to-surface reuses their ring planes between calls on
 /// the same level); it must have the length of `points`.
-#[allow(clippy::too_many_arguments)]
 pub fn associate<P: Pyramid>(
-    reference: &P,
-    level: usize,
-    frame: &PixelFrame,
+    matcher: &Matcher<'_, P>,
     points: &[Vector3<f64>],
     memo: &mut [PlaneMemo],
     t_ref_moving: &Isometry3<f64>,
-    tau_m: f64,
-    metric: Metric,
 ) -> Result<Association, String> {
+    let Matcher {
+        reference,
+        level,
+        ref frame,
+        tau_m,
+        metric,
+    } = *matcher;
     assert_eq!(points.len(), memo.len(), "one plane memo per point");
     // Every block writes its matches into its own slice of one allocation
     // (a slot per query), then the matches are moved to the front in input
@@ -119,9 +143,7 @@ pub fn associate<P: Pyramid>(
     for count in counts {
         let (below, nn) = count?;
         all.with_reference_below += below;
-        all.nn.queries += nn.queries;
-        all.nn.pixels_visited += nn.pixels_visited;
-        all.nn.not_found += nn.not_found;
+        all.nn.add(&nn);
     }
     // compact: matched slots (a finite distance) to the front, in order
     let mut kept = 0;
