@@ -70,9 +70,14 @@ impl Bounds {
         (common.max_x > common.min_x && common.max_y > common.min_y).then_some(common)
     }
 
-    /// True when the two boxes share a region of positive area.
+    /// True when the two boxes share a region of positive area (each edge
+    /// strictly inside the other box's span; for boxes with min < max this is
+    /// `intersection(..).is_some()`).
     pub fn overlaps(&self, other: &Bounds) -> bool {
-        self.intersection(other).is_some()
+        self.min_x < other.max_x
+            && other.min_x < self.max_x
+            && self.min_y < other.max_y
+            && other.min_y < self.max_y
     }
 
     /// The smallest box containing both.
