@@ -67,31 +67,10 @@ pub fn nearest<G: Grid + ?Sized>(
         if ring_fully_outside(c0, r0, k, w, h) {
             continue;
         }
-        let mut visit = |col: i64, row: i64| {
+        for_ring_pixels(c0, r0, k, w, h, |col, row| {
             stats.pixels_visited += 1;
             best.offer(grid, frame, query, max_radius_m, col, row);
-        };
-        if k == 0 {
-            visit(c0, r0);
-            continue;
-        }
-        let (cl, cr, rt, rb) = (c0 - k, c0 + k, r0 - k, r0 + k);
-        let (col_lo, col_hi) = (cl.max(0), cr.min(w - 1));
-        for row in [rt, rb] {
-            if (0..h).contains(&row) {
-                for c in col_lo..=col_hi {
-                    visit(c, row);
-                }
-            }
-        }
-        let (row_lo, row_hi) = ((rt + 1).max(0), (rb - 1).min(h - 1));
-        for col in [cl, cr] {
-            if (0..w).contains(&col) {
-                for r in row_lo..=row_hi {
-                    visit(col, r);
-                }
-            }
-        }
+        });
     }
     let best = best.neighbour;
     match best {
@@ -137,6 +116,34 @@ impl Best {
                 point: p,
                 distance_m: d2.sqrt(),
             });
+        }
+    }
+}
+
+/// Calls `visit(col, row)` for the pixels of the square ring of Chebyshev
+/// radius k around (c0, r0) that lie inside a w x h raster: top and bottom
+/// rows left to right, then the left and right columns top to bottom.
+#[inline]
+fn for_ring_pixels(c0: i64, r0: i64, k: i64, w: i64, h: i64, mut visit: impl FnMut(i64, i64)) {
+    if k == 0 {
+        visit(c0, r0);
+        return;
+    }
+    let (cl, cr, rt, rb) = (c0 - k, c0 + k, r0 - k, r0 + k);
+    let (col_lo, col_hi) = (cl.max(0), cr.min(w - 1));
+    for row in [rt, rb] {
+        if (0..h).contains(&row) {
+            for c in col_lo..=col_hi {
+                visit(c, row);
+            }
+        }
+    }
+    let (row_lo, row_hi) = ((rt + 1).max(0), (rb - 1).min(h - 1));
+    for col in [cl, cr] {
+        if (0..w).contains(&col) {
+            for r in row_lo..=row_hi {
+                visit(col, r);
+            }
         }
     }
 }
