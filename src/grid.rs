@@ -5,7 +5,7 @@
 //! shared chunk cache, and [`MemGrid`] holds a small raster in memory for tests
 //! and tools. No-data is NaN, and so is any pixel outside the raster.
 
-use crate::raster::GeoTransform;
+use crate::geo::GeoTransform;
 
 /// Read access to one level of one DSM. `&mut self` lets an implementation keep
 /// a few chunks pinned between calls (each worker owns its own view).

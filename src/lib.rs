@@ -21,6 +21,7 @@ pub mod error;
 pub mod eval;
 pub mod fit;
 pub mod fuse;
+pub mod geo;
 pub mod geotiff;
 pub mod graph;
 pub mod grid;

@@ -17,7 +17,7 @@ use dsmstream::icp::sample::sample_overlap;
 use dsmstream::icp::{associate::block_order, IcpConfig, IcpStatus};
 use dsmstream::nn::PixelFrame;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
-use nalgebra::{Isometry3, Matrix4, Point3, Translation3, Vector3};
+use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 
 /// Query points per parallel block (as in `icp::associate`).
@@ -44,22 +44,12 @@ pub fn queries<R: Pyramid, M: Pyramid>(
 ) -> Result<Queries, String> {
     let ref0 = reference.open_level(0)?;
     let mut mov0 = moving.open_level(0)?;
-    let bounds = |g: &dyn Grid| g.geotransform().bounds(g.width() as u64, g.height() as u64);
-    let (a, b) = (bounds(&ref0), bounds(&mov0));
-    let overlap = [
-        a[0].max(b[0]),
-        a[1].max(b[1]),
-        a[2].min(b[2]),
-        a[3].min(b[3]),
-    ];
-    if overlap[2] <= overlap[0] || overlap[3] <= overlap[1] {
-        return Err("the two DSMs do not overlap".into());
-    }
-    let origin_xy = Vector3::new(
-        (overlap[0] + overlap[2]) / 2.0,
-        (overlap[1] + overlap[3]) / 2.0,
-        0.0,
-    );
+    let extent = |g: &dyn Grid| g.geotransform().extent(g.width() as u64, g.height() as u64);
+    let overlap = extent(&ref0)
+        .intersection(&extent(&mov0))
+        .ok_or("the two DSMs do not overlap")?;
+    let (centre_x, centre_y) = overlap.centre();
+    let origin_xy = Vector3::new(centre_x, centre_y, 0.0);
     let sample_frame = PixelFrame::new(&mov0.geotransform(), &origin_xy);
     let mut points = sample_overlap(
         &mut mov0,
@@ -79,8 +69,7 @@ pub fn queries<R: Pyramid, M: Pyramid>(
     }
     let ref_frame = PixelFrame::new(&ref0.geotransform(), &origin);
     block_order(&mut points, &ref_frame, 256);
-    let lever_m =
-        0.5 * ((overlap[2] - overlap[0]).powi(2) + (overlap[3] - overlap[1]).powi(2)).sqrt();
+    let lever_m = overlap.half_diagonal();
     Ok(Queries {
         points,
         origin,
@@ -233,13 +222,12 @@ pub fn register_kd(kd: &KdReference, q: &Queries, config: &IcpConfig) -> KdIcpRe
     } else if status != IcpStatus::TooFewInliers && last.corrs.len() * 2 < peak_inliers {
         status = IcpStatus::Diverged;
     }
-    let to = Translation3::from(q.origin).to_homogeneous();
-    let m: Matrix4<f64> = to * t.to_homogeneous() * to.try_inverse().expect("translation");
+    let t_ref_moving = dsmstream::geo::rigid::isometry_to_world(&t, &q.origin);
     let rmse_m = (last.distances_m.iter().map(|d| d * d).sum::<f64>()
         / last.distances_m.len().max(1) as f64)
         .sqrt();
     KdIcpResult {
-        m_world: dsmstream::icp::matrix_rows(&m),
+        m_world: dsmstream::geo::rigid::to_rows(&t_ref_moving),
         rmse_m,
         inliers: last.corrs.len(),
         iterations,

@@ -179,7 +179,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 }
 
 fn print_table(reference: &str, moving: &str, r: &IcpResult, seconds: f64) {
-    let m = matrix_rows(&r.m_world);
+    let m = matrix_rows(&r.t_ref_moving);
     let rot = nalgebra::Matrix3::from_fn(|a, b| m[a][b]);
     let angle_deg = ((rot.trace() - 1.0) / 2.0)
         .clamp(-1.0, 1.0)

@@ -16,6 +16,7 @@ use super::stats::{diff_stats, DiffStats, Thinned};
 use super::surfaces::{Placement, Surfaces};
 use super::{EvalConfig, EvalError};
 use crate::cache::ChunkCache;
+use crate::geo::Bounds;
 use crate::plan::{candidate_pairs, Footprint};
 use crate::store::Store;
 
@@ -59,7 +60,9 @@ pub fn eval_pairs(
         .map(|(k, p)| Footprint {
             index: k,
             bounds: match after {
-                Some(a) => union(p.corrected_bounds, a.placed[k].corrected_bounds),
+                Some(a) => Bounds::from(p.corrected_bounds)
+                    .union(&a.placed[k].corrected_bounds.into())
+                    .to_array(),
                 None => p.corrected_bounds,
             },
         })
@@ -69,7 +72,7 @@ pub fn eval_pairs(
         pairs
             .par_iter()
             .map(|&(i, j)| {
-                let region = intersect(footprints[i].bounds, footprints[j].bounds);
+                let region = Bounds::from(footprints[i].bounds).clip(&footprints[j].bounds.into());
                 eval_pair(store, cache, before, after, config, i, j, region)
             })
             .collect::<Result<Vec<_>, _>>()
@@ -98,13 +101,13 @@ fn eval_pair(
     config: &EvalConfig,
     i: usize,
     j: usize,
-    region: [f64; 4],
+    region: Bounds,
 ) -> Result<(PairEval, Vec<f32>, Vec<f32>), EvalError> {
     let meta = &store.dsms()[i];
     let gt = meta.geotransform;
     // level-0 pixel range of DSM i inside the region
-    let (c0, r0) = gt.world_to_pixel(region[0], region[3]);
-    let (c1, r1) = gt.world_to_pixel(region[2], region[1]);
+    let (c0, r0) = gt.world_to_pixel(region.min_x, region.max_y);
+    let (c1, r1) = gt.world_to_pixel(region.max_x, region.min_y);
     let clamp = |v: f64, n: u64| v.max(0.0).min(n as f64);
     let (c0, c1) = (
         clamp(c0.floor(), meta.width) as u64,
@@ -174,22 +177,4 @@ fn pixel_to_surface(
     };
     let zj = s.height(j, px, py)?;
     Ok((!zj.is_nan()).then_some((zj - pz) as f32))
-}
-
-fn union(a: [f64; 4], b: [f64; 4]) -> [f64; 4] {
-    [
-        a[0].min(b[0]),
-        a[1].min(b[1]),
-        a[2].max(b[2]),
-        a[3].max(b[3]),
-    ]
-}
-
-fn intersect(a: [f64; 4], b: [f64; 4]) -> [f64; 4] {
-    [
-        a[0].max(b[0]),
-        a[1].max(b[1]),
-        a[2].min(b[2]),
-        a[3].min(b[3]),
-    ]
 }

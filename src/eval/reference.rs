@@ -17,6 +17,7 @@ use super::stats::{diff_stats, DiffStats};
 use super::surfaces::{Placement, Surfaces};
 use super::{EvalConfig, EvalError};
 use crate::cache::ChunkCache;
+use crate::geo::Bounds;
 use crate::geotiff::reader::GeoTiffReader;
 use crate::store::Store;
 
@@ -123,7 +124,7 @@ fn coverage(before: &Placement, after: Option<&Placement>) -> [f64; 4] {
 }
 
 pub(crate) fn overlaps(a: [f64; 4], b: [f64; 4]) -> bool {
-    a[0] < b[2] && b[0] < a[2] && a[1] < b[3] && b[1] < a[3]
+    Bounds::from(a).overlaps(&b.into())
 }
 
 fn diff_chunk(

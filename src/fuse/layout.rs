@@ -6,6 +6,7 @@
 use rstar::{RTree, AABB};
 
 use super::corrected::PoseXf;
+use crate::geo::Bounds;
 use crate::plan::Footprint;
 use crate::raster::GeoTransform;
 use crate::store::{DsmMeta, Store};
@@ -83,17 +84,7 @@ impl OutputGrid {
 
 /// Union of bounds.
 pub fn union_bounds(bounds: impl IntoIterator<Item = [f64; 4]>) -> Option<[f64; 4]> {
-    bounds.into_iter().fold(None, |acc, b| {
-        Some(match acc {
-            None => b,
-            Some(a) => [
-                a[0].min(b[0]),
-                a[1].min(b[1]),
-                a[2].max(b[2]),
-                a[3].max(b[3]),
-            ],
-        })
-    })
+    Bounds::union_all(bounds.into_iter().map(Bounds::from)).map(Bounds::to_array)
 }
 
 /// The finest level-0 cell of the store and the origin of a DSM that has it.

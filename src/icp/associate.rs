@@ -40,19 +40,36 @@ pub fn block_order(points: &mut [Vector3<f64>], frame: &PixelFrame, block_px: i6
     });
 }
 
+/// What the correspondence step needs of one level: the reference pyramid and
+/// level, that level's lattice in the local frame, the outlier distance and the metric.
+pub struct Matcher<'a, P> {
+    pub reference: &'a P,
+    pub level: usize,
+    pub frame: PixelFrame,
+    pub tau_m: f64,
+    pub metric: Metric,
+}
+
+impl<P: Pyramid> Matcher<'_, P> {
+    /// [`associate`] on this level.
+    pub fn associate(
+        &self,
+        points: &[Vector3<f64>],
+        memo: &mut [PlaneMemo],
+        t_ref_moving: &Isometry3<f64>,
+    ) -> Result<Association, String> {
+        associate(self, points, memo, t_ref_moving)
+    }
+}
+
 /// Matches `points` (moving frame) mapped by `t_ref_moving`. `memo` holds one
 /// entry per point (point-to-surface reuses their ring planes between calls on
 /// the same level); it must have the length of `points`.
-#[allow(clippy::too_many_arguments)]
 pub fn associate<P: Pyramid>(
-    reference: &P,
-    level: usize,
-    frame: &PixelFrame,
+    matcher: &Matcher<'_, P>,
     points: &[Vector3<f64>],
     memo: &mut [PlaneMemo],
     t_ref_moving: &Isometry3<f64>,
-    tau_m: f64,
-    metric: Metric,
 ) -> Result<Association, String> {
     assert_eq!(points.len(), memo.len(), "one plane memo per point");
     // Every block writes its matches into its own slice of one allocation
@@ -64,80 +81,123 @@ pub fn associate<P: Pyramid>(
         normal: Vector3::z(),
         weight: 1.0,
     };
-    let mut corrs = vec![unmatched; points.len()];
-    let mut distances_m = vec![f64::NAN; points.len()];
-    let mut roughness_m = vec![0.0; points.len()];
-    let counts: Vec<Result<(usize, NnStats), String>> = points
-        .par_chunks(BLOCK)
-        .zip(memo.par_chunks_mut(BLOCK))
-        .zip(corrs.par_chunks_mut(BLOCK))
-        .zip(distances_m.par_chunks_mut(BLOCK))
-        .zip(roughness_m.par_chunks_mut(BLOCK))
-        .map(|((((block, memo), corrs), distances_m), roughness_m)| {
-            let mut grid = reference.open_level(level)?;
-            let (mut below, mut nn) = (0usize, NnStats::default());
-            for (i, (p, memo)) in block.iter().zip(memo).enumerate() {
-                let q = t_ref_moving.transform_point(&Point3::from(*p)).coords;
-                let (c, r) = frame.to_pixel(&q);
-                if !grid.get(c.floor() as i64, r.floor() as i64).is_nan() {
-                    below += 1;
-                }
-                let Some(n) = nearest(&mut grid, frame, &q, tau_m, &mut nn) else {
-                    continue;
-                };
-                if n.distance_m > tau_m {
-                    continue;
-                }
-                let (reference, normal, roughness) = match metric {
-                    Metric::PointToSurface => {
-                        match surface_below_memo(&mut grid, frame, &q, memo) {
-                            Some(s) => (s.point, s.normal, s.roughness_m),
-                            None => continue,
-                        }
-                    }
-                    _ => (n.point, normal_at(&mut grid, frame, n.col, n.row), 0.0),
-                };
-                corrs[i] = Correspondence {
-                    moving: q,
-                    reference,
-                    normal,
-                    weight: 1.0,
-                };
-                distances_m[i] = n.distance_m;
-                roughness_m[i] = roughness;
-            }
-            if let Some(e) = grid.take_error() {
-                return Err(e);
-            }
-            Ok((below, nn))
-        })
-        .collect();
     let mut all = Association {
+        corrs: vec![unmatched; points.len()],
+        distances_m: vec![f64::NAN; points.len()],
+        roughness_m: vec![0.0; points.len()],
         queries: points.len(),
         ..Default::default()
     };
+    let counts: Vec<Result<(usize, NnStats), String>> = points
+        .par_chunks(BLOCK)
+        .zip(memo.par_chunks_mut(BLOCK))
+        .zip(all.corrs.par_chunks_mut(BLOCK))
+        .zip(all.distances_m.par_chunks_mut(BLOCK))
+        .zip(all.roughness_m.par_chunks_mut(BLOCK))
+        .map(|((((block, memo), corrs), distances_m), roughness_m)| {
+            let slots = Slots {
+                corrs,
+                distances_m,
+                roughness_m,
+            };
+            match_block(matcher, block, memo, t_ref_moving, slots)
+        })
+        .collect();
     for count in counts {
         let (below, nn) = count?;
         all.with_reference_below += below;
-        all.nn.queries += nn.queries;
-        all.nn.pixels_visited += nn.pixels_visited;
-        all.nn.not_found += nn.not_found;
+        all.nn.add(&nn);
     }
-    // compact: matched slots (a finite distance) to the front, in order
-    let mut kept = 0;
-    for i in 0..points.len() {
-        if distances_m[i].is_finite() {
-            corrs[kept] = corrs[i];
-            distances_m[kept] = distances_m[i];
-            roughness_m[kept] = roughness_m[i];
-            kept += 1;
-        }
-    }
-    corrs.truncate(kept);
-    distances_m.truncate(kept);
-    roughness_m.truncate(kept);
-    all.corrs = corrs;
-    all.distances_m = distances_m;
-    all.roughness_m = roughness_m;
+    all.compact();
     Ok(all)
+}
+
+/// One block's share of the output: a slot per query.
+struct Slots<'s> {
+    corrs: &'s mut [Correspondence],
+    /// NaN while unmatched.
+    distances_m: &'s mut [f64],
+    roughness_m: &'s mut [f64],
+}
+
+/// Matches one block of queries through its own view of the reference level;
+/// returns how many had a valid pixel right below and the search counters.
+fn match_block<P: Pyramid>(
+    matcher: &Matcher<'_, P>,
+    block: &[Vector3<f64>],
+    memo: &mut [PlaneMemo],
+    t_ref_moving: &Isometry3<f64>,
+    slots: Slots<'_>,
+) -> Result<(usize, NnStats), String> {
+    let mut grid = matcher.reference.open_level(matcher.level)?;
+    let (mut below, mut nn) = (0usize, NnStats::default());
+    for (i, (p, memo)) in block.iter().zip(memo).enumerate() {
+        let q = t_ref_moving.transform_point(&Point3::from(*p)).coords;
+        let (c, r) = matcher.frame.to_pixel(&q);
+        if !grid.get(c.floor() as i64, r.floor() as i64).is_nan() {
+            below += 1;
+        }
+        let Some((corr, distance_m, roughness_m)) =
+            match_query(&mut grid, matcher, &q, memo, &mut nn)
+        else {
+            continue;
+        };
+        slots.corrs[i] = corr;
+        slots.distances_m[i] = distance_m;
+        slots.roughness_m[i] = roughness_m;
+    }
+    if let Some(e) = grid.take_error() {
+        return Err(e);
+    }
+    Ok((below, nn))
+}
+
+/// The correspondence of one query `q` (reference frame, local): its exact
+/// NN within tau, then the reference point and normal of the metric; with the
+/// NN distance and the surface roughness there.
+fn match_query<P, G: Grid>(
+    grid: &mut G,
+    matcher: &Matcher<'_, P>,
+    q: &Vector3<f64>,
+    memo: &mut PlaneMemo,
+    nn: &mut NnStats,
+) -> Option<(Correspondence, f64, f64)> {
+    let frame = &matcher.frame;
+    let n = nearest(grid, frame, q, matcher.tau_m, nn)?;
+    if n.distance_m > matcher.tau_m {
+        return None;
+    }
+    let (reference, normal, roughness_m) = match matcher.metric {
+        Metric::PointToSurface => {
+            let s = surface_below_memo(grid, frame, q, memo)?;
+            (s.point, s.normal, s.roughness_m)
+        }
+        _ => (n.point, normal_at(grid, frame, n.col, n.row), 0.0),
+    };
+    let corr = Correspondence {
+        moving: *q,
+        reference,
+        normal,
+        weight: 1.0,
+    };
+    Some((corr, n.distance_m, roughness_m))
+}
+
+impl Association {
+    /// Moves the matched slots (a finite distance) to the front, in input
+    /// order, and drops the rest.
+    fn compact(&mut self) {
+        let mut kept = 0;
+        for i in 0..self.distances_m.len() {
+            if self.distances_m[i].is_finite() {
+                self.corrs[kept] = self.corrs[i];
+                self.distances_m[kept] = self.distances_m[i];
+                self.roughness_m[kept] = self.roughness_m[i];
+                kept += 1;
+            }
+        }
+        self.corrs.truncate(kept);
+        self.distances_m.truncate(kept);
+        self.roughness_m.truncate(kept);
+    }
 }

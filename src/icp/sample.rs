@@ -4,6 +4,7 @@
 
 use nalgebra::Vector3;
 
+use crate::geo::Bounds;
 use crate::grid::Grid;
 use crate::nn::PixelFrame;
 use crate::rng::SplitMix64;
@@ -17,11 +18,11 @@ pub struct Samples {
 }
 
 /// Pixel rectangle [col0, col1) x [row0, row1) of `grid` covered by the world
-/// box [min_x, min_y, max_x, max_y]; None when it is empty.
-pub fn pixel_window<G: Grid + ?Sized>(grid: &G, world_box: &[f64; 4]) -> Option<[i64; 4]> {
+/// box; None when it is empty.
+pub fn pixel_window<G: Grid + ?Sized>(grid: &G, world_box: &Bounds) -> Option<[i64; 4]> {
     let gt = grid.geotransform();
-    let (c0, r0) = gt.world_to_pixel(world_box[0], world_box[3]);
-    let (c1, r1) = gt.world_to_pixel(world_box[2], world_box[1]);
+    let (c0, r0) = gt.world_to_pixel(world_box.min_x, world_box.max_y);
+    let (c1, r1) = gt.world_to_pixel(world_box.max_x, world_box.min_y);
     let col0 = (c0.ceil() as i64).max(0);
     let row0 = (r0.ceil() as i64).max(0);
     let col1 = (c1.floor() as i64).min(grid.width());
@@ -33,7 +34,7 @@ pub fn pixel_window<G: Grid + ?Sized>(grid: &G, world_box: &[f64; 4]) -> Option<
 pub fn sample_overlap<G: Grid + ?Sized>(
     grid: &mut G,
     frame: &PixelFrame,
-    world_box: &[f64; 4],
+    world_box: &Bounds,
     count: usize,
     seed: u64,
 ) -> Samples {

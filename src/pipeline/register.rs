@@ -40,7 +40,7 @@ pub fn register_pair(
             tracing::debug!(reference = %ri.id, moving = %mi.id, rmse_m = r.rmse_m, status = ?r.status, "pair aligned");
             let fit = IcpFit {
                 status: r.status,
-                t_ref_moving_world: r.m_world,
+                t_ref_moving_world: r.t_ref_moving.to_homogeneous(),
                 rmse_m: r.rmse_m,
                 inliers: r.inliers,
                 iterations: r.iterations,

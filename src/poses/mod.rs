@@ -11,7 +11,8 @@
 //! `"components"` (lists of ids) and `"summary"`.
 
 mod json;
-pub mod rigid;
+/// Rigid-transform helpers, now in [`crate::geo::rigid`].
+pub use crate::geo::rigid;
 
 pub use rigid::{inverse_rigid, rotation_angle_deg, to_local, to_world};
 

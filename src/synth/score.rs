@@ -8,6 +8,7 @@ use nalgebra::{Matrix4, Vector3, Vector4};
 
 use super::output::{Truth, TruthTile};
 use crate::fit::{point_to_point, Correspondence, Model};
+use crate::geo::rigid::{from_rows, rotation, rotation_angle_deg};
 use crate::poses::PosesFile;
 
 /// Over every pair of tiles, the disagreement of M_i^-1 M_j with the truth's,
@@ -33,7 +34,7 @@ pub struct PerDsmError {
 }
 
 fn matrix(rows: &[[f64; 4]; 4]) -> Matrix4<f64> {
-    Matrix4::from_fn(|r, c| rows[r][c])
+    from_rows(rows)
 }
 
 fn inverse(m: &Matrix4<f64>) -> Matrix4<f64> {
@@ -41,8 +42,7 @@ fn inverse(m: &Matrix4<f64>) -> Matrix4<f64> {
 }
 
 fn angle_deg(m: &Matrix4<f64>) -> f64 {
-    let trace = m[(0, 0)] + m[(1, 1)] + m[(2, 2)];
-    ((trace - 1.0) / 2.0).clamp(-1.0, 1.0).acos().to_degrees()
+    rotation_angle_deg(&rotation(m))
 }
 
 impl Truth {
@@ -145,16 +145,10 @@ mod tests {
     use nalgebra::{Isometry3, Translation3, UnitQuaternion};
 
     fn tile(id: &str, x0: f64, m: &Matrix4<f64>) -> TruthTile {
-        let mut rows = [[0.0; 4]; 4];
-        for (r, row) in rows.iter_mut().enumerate() {
-            for (c, v) in row.iter_mut().enumerate() {
-                *v = m[(r, c)];
-            }
-        }
         TruthTile {
             id: id.into(),
             file: format!("{id}.tif"),
-            matrix_world: rows,
+            matrix_world: crate::geo::rigid::to_rows(m),
             width: 1000,
             height: 1000,
             geotransform: [x0, 0.5, 0.0, 5_000_500.0, 0.0, -0.5],

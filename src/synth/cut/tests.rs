@@ -126,7 +126,7 @@ fn rotated_tiles_map_back_onto_the_source_and_truth_poses_have_no_error() {
     for tile in &truth.tiles[1..] {
         assert!(tile.rot_deg.iter().any(|a| a.abs() > 0.005), "{tile:?}");
         let (info, data) = read(&out.join(&tile.file));
-        let m = nalgebra::Matrix4::from_fn(|r, c| tile.matrix_world[r][c]);
+        let m = crate::geo::rigid::from_rows::<nalgebra::Matrix4<f64>>(&tile.matrix_world);
         let (mut valid, mut worst) = (0, 0.0f64);
         for (k, z) in data.iter().enumerate() {
             if z.is_nan() {
@@ -149,7 +149,7 @@ fn rotated_tiles_map_back_onto_the_source_and_truth_poses_have_no_error() {
             .iter()
             .map(|t| PoseEntry {
                 id: t.id.clone(),
-                matrix_world: nalgebra::Matrix4::from_fn(|r, c| t.matrix_world[r][c]),
+                matrix_world: crate::geo::rigid::from_rows(&t.matrix_world),
             })
             .collect(),
         edges: vec![],

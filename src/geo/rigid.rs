@@ -1,11 +1,13 @@
-//! Rigid 4x4 transforms (`matrix_world` and relative poses): parts, application to
-//! points, inversion, rotation angles, projection onto SO(3), and the change between
-//! world coordinates (UTM, ~10^6 m) and a local frame shifted by a common origin.
+//! Rigid transforms: the ICP's `Isometry3<f64>` and the 4x4 matrices of poses
+//! (`matrix_world` and relative poses). Parts, application to points, inversion,
+//! rotation angles, projection onto SO(3), the change between world coordinates
+//! (UTM, ~10^6 m) and a local frame shifted by a common origin, and the one
+//! row-major `[[f64; 4]; 4]` form every file uses ([`Rows`], serde adapter [`rows`]).
 //!
 //! Convention (DESIGN.md): a pose M maps a point of its DSM to the corrected frame,
 //! p_corrected = M p; the relative pose of an edge is M_ij = M_i^-1 M_j.
 
-use nalgebra::{Matrix3, Matrix4, Vector3};
+use nalgebra::{Isometry3, Matrix3, Matrix4, Rotation3, Translation3, UnitQuaternion, Vector3};
 
 /// The rotation block R of a rigid transform.
 pub fn rotation(m: &Matrix4<f64>) -> Matrix3<f64> {
@@ -119,6 +121,84 @@ pub fn to_world(m_local: &Matrix4<f64>, origin_world: &Vector3<f64>) -> Matrix4<
     from_parts(&r, &t_world)
 }
 
+/// Local isometry -> world isometry for a frame shifted by `origin_world`:
+/// T(o) t_local T(-o), the [`to_world`] of the ICP's own type (R unchanged,
+/// t_world = t + o - R o). The translation is taken from the product of the
+/// homogeneous matrices, so it is bit-identical to the 4x4 form of the same
+/// product (the rotation keeps its quaternion).
+pub fn isometry_to_world(t_local: &Isometry3<f64>, origin_world: &Vector3<f64>) -> Isometry3<f64> {
+    let m_world = Translation3::from(*origin_world).to_homogeneous()
+        * t_local.to_homogeneous()
+        * Translation3::from(-origin_world).to_homogeneous();
+    Isometry3::from_parts(Translation3::from(translation(&m_world)), t_local.rotation)
+}
+
+/// A rigid transform written as a row-major 4x4 `[[f64; 4]; 4]` (poses.json,
+/// the journal, truth.json, `pair --json`): `rows[r][c]` is entry (r, c).
+pub trait Rows: Sized {
+    fn to_row_major(&self) -> [[f64; 4]; 4];
+    /// The transform of `rows`; the caller validates rigidity where it matters.
+    fn from_row_major(rows: &[[f64; 4]; 4]) -> Self;
+}
+
+impl Rows for Matrix4<f64> {
+    fn to_row_major(&self) -> [[f64; 4]; 4] {
+        let mut rows = [[0.0; 4]; 4];
+        for (r, row) in rows.iter_mut().enumerate() {
+            for (c, v) in row.iter_mut().enumerate() {
+                *v = self[(r, c)];
+            }
+        }
+        rows
+    }
+
+    fn from_row_major(rows: &[[f64; 4]; 4]) -> Self {
+        Matrix4::from_fn(|r, c| rows[r][c])
+    }
+}
+
+impl Rows for Isometry3<f64> {
+    fn to_row_major(&self) -> [[f64; 4]; 4] {
+        self.to_homogeneous().to_row_major()
+    }
+
+    /// Reads R and t; R is taken as a rotation without re-projection.
+    fn from_row_major(rows: &[[f64; 4]; 4]) -> Self {
+        let m = Matrix4::from_row_major(rows);
+        let r = Rotation3::from_matrix_unchecked(rotation(&m));
+        Isometry3::from_parts(
+            Translation3::from(translation(&m)),
+            UnitQuaternion::from_rotation_matrix(&r),
+        )
+    }
+}
+
+/// Row-major 4x4 of a transform (see [`Rows`]).
+pub fn to_rows<T: Rows>(t: &T) -> [[f64; 4]; 4] {
+    t.to_row_major()
+}
+
+/// The transform of a row-major 4x4 (see [`Rows`]).
+pub fn from_rows<T: Rows>(rows: &[[f64; 4]; 4]) -> T {
+    T::from_row_major(rows)
+}
+
+/// The serde adapter for a transform field kept as rows on disk:
+/// `#[serde(with = "crate::geo::rigid::rows")]`.
+pub mod rows {
+    use super::Rows;
+    use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+    pub fn serialize<T: Rows, S: Serializer>(t: &T, s: S) -> Result<S::Ok, S::Error> {
+        t.to_row_major().serialize(s)
+    }
+
+    pub fn deserialize<'de, T: Rows, D: Deserializer<'de>>(d: D) -> Result<T, D::Error> {
+        let rows = <[[f64; 4]; 4]>::deserialize(d)?;
+        Ok(T::from_row_major(&rows))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -174,6 +254,50 @@ mod tests {
         assert!((via_local - apply(&m_world, &p_world)).norm() < 1e-8);
         let back = to_world(&m_local, &origin);
         assert!((back - m_world).abs().max() < 1e-9);
+    }
+
+    #[test]
+    fn isometry_to_world_matches_the_matrix_form() {
+        let t_local = Isometry3::from_parts(
+            Translation3::new(1.5, -0.7, 0.3),
+            UnitQuaternion::from_scaled_axis(Vector3::new(1e-4, -3e-4, 2e-4)),
+        );
+        let origin = Vector3::new(500_000.0, 4_000_000.0, 100.0);
+        let via_matrix = to_world(&t_local.to_homogeneous(), &origin);
+        let via_iso = isometry_to_world(&t_local, &origin).to_homogeneous();
+        assert!((via_matrix - via_iso).abs().max() < 1e-8);
+        let conj = Translation3::from(origin).to_homogeneous()
+            * t_local.to_homogeneous()
+            * Translation3::from(-origin).to_homogeneous();
+        assert!((conj - via_iso).abs().max() < 1e-8);
+    }
+
+    #[test]
+    fn rows_are_row_major_and_round_trip_through_serde() {
+        let m = sample_pose();
+        let rows = to_rows(&m);
+        assert_eq!(rows[0][3], 1.5);
+        assert_eq!(rows[3], [0.0, 0.0, 0.0, 1.0]);
+        assert_eq!(from_rows::<Matrix4<f64>>(&rows), m);
+        let iso: Isometry3<f64> = from_rows(&rows);
+        assert!((iso.to_homogeneous() - m).abs().max() < 1e-15);
+
+        #[derive(serde::Serialize, serde::Deserialize)]
+        struct Doc {
+            #[serde(with = "rows")]
+            t_ref_moving: Isometry3<f64>,
+            #[serde(with = "rows")]
+            matrix_world: Matrix4<f64>,
+        }
+        let doc = Doc {
+            t_ref_moving: iso,
+            matrix_world: m,
+        };
+        let text = serde_json::to_string(&doc).unwrap();
+        assert!(text.starts_with("{\"t_ref_moving\":[["), "{text}");
+        let back: Doc = serde_json::from_str(&text).unwrap();
+        assert_eq!(back.matrix_world, m);
+        assert!((back.t_ref_moving.to_homogeneous() - m).abs().max() < 1e-15);
     }
 
     #[test]

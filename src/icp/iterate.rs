@@ -1,0 +1,186 @@
+//! The classic ICP loop on one fixed point set (Xu & Qin 2024, Sec. 3.1):
+//! associate, weight, fit, update, until [`Convergence::converged`] or something
+//! breaks (too few matches, a degenerate fit, a run-away motion).
+
+use nalgebra::Isometry3;
+
+use super::associate::Association;
+use super::config::DEGENERATE_RATIO;
+use super::robust::{smooth_only, weighted};
+use super::{IcpConfig, IcpError, IcpStatus, Metric};
+use crate::fit::{point_to_plane, point_to_point, Correspondence, FitSigma};
+
+/// Where one run of the loop over a fixed point set ended.
+pub(super) struct Phase {
+    pub t_ref_moving: Isometry3<f64>,
+    pub status: IcpStatus,
+    pub iterations: usize,
+    pub constraint_ratio: f64,
+    pub sigma: FitSigma,
+    /// Most inliers seen in one iteration (a later collapse means divergence).
+    pub peak_inliers: usize,
+}
+
+impl Default for Phase {
+    fn default() -> Self {
+        Phase {
+            t_ref_moving: Isometry3::identity(),
+            status: IcpStatus::MaxIterations,
+            iterations: 0,
+            constraint_ratio: 1.0,
+            sigma: FitSigma::default(),
+            peak_inliers: 0,
+        }
+    }
+}
+
+/// The stopping rule of one level: motions are measured in metres at the
+/// overlap's edge (translation plus angle times the lever arm).
+pub(super) struct Convergence {
+    /// Half diagonal of the overlap.
+    pub lever_m: f64,
+    /// Motion below which an update counts as zero (scaled with the level's GSD).
+    pub tolerance_m: f64,
+}
+
+impl Convergence {
+    fn motion_m(&self, t: &Isometry3<f64>) -> f64 {
+        t.translation.vector.norm() + t.rotation.angle() * self.lever_m
+    }
+
+    /// Done when the last update is below the tolerance, or the estimate stalls.
+    pub fn converged(&self, update: &Isometry3<f64>, recent: &[Isometry3<f64>]) -> bool {
+        self.motion_m(update) < self.tolerance_m || self.stalled(recent)
+    }
+
+    /// At the noise floor the inlier set flips between iterations and the
+    /// estimate jitters without a trend: when the net motion over the last four
+    /// iterations is below 10 tolerances, the level is done (a slow drift keeps going).
+    fn stalled(&self, estimates: &[Isometry3<f64>]) -> bool {
+        let n = estimates.len();
+        if n < 5 {
+            return false;
+        }
+        let net = estimates[n - 1] * estimates[n - 5].inverse();
+        self.motion_m(&net) < 10.0 * self.tolerance_m
+    }
+}
+
+/// The loop on one point set, matched by `associate` at a given estimate.
+pub(super) fn iterate(
+    mut t_ref_moving: Isometry3<f64>,
+    min_inliers: usize,
+    stop: &Convergence,
+    config: &IcpConfig,
+    associate: &mut dyn FnMut(&Isometry3<f64>) -> Result<Association, IcpError>,
+) -> Result<Phase, IcpError> {
+    let mut phase = Phase {
+        t_ref_moving,
+        ..Phase::default()
+    };
+    let mut recent: Vec<Isometry3<f64>> = vec![t_ref_moving];
+    for _ in 0..config.max_iter {
+        phase.iterations += 1;
+        // 1. associate: exact grid NN of every query, beyond tau dropped
+        let assoc = associate(&t_ref_moving)?;
+        if assoc.corrs.len() < min_inliers {
+            phase.status = IcpStatus::TooFewInliers;
+            break;
+        }
+        phase.peak_inliers = phase.peak_inliers.max(assoc.corrs.len());
+        // 2. weight: rough places out, Tukey biweights on the residuals
+        let corrs = weighted(
+            smooth_only(assoc.corrs, &assoc.roughness_m, config.max_roughness_m),
+            config.metric,
+        );
+        // 3. fit the update that brings the matches together
+        let step = fit(&corrs, config);
+        if let Some(sigma) = step.sigma {
+            phase.sigma = sigma;
+        }
+        phase.constraint_ratio = step.constraint_ratio;
+        if step.constraint_ratio < DEGENERATE_RATIO {
+            phase.status = IcpStatus::Degenerate;
+            break;
+        }
+        // 4. update the estimate and check the stopping rule
+        t_ref_moving = step.update * t_ref_moving;
+        phase.t_ref_moving = t_ref_moving;
+        tracing::trace!(t = ?t_ref_moving.translation.vector, n = corrs.len(), "iteration");
+        if t_ref_moving.translation.vector.norm() > config.max_displacement_m {
+            phase.status = IcpStatus::Diverged;
+            break;
+        }
+        recent.push(t_ref_moving);
+        if stop.converged(&step.update, &recent) {
+            phase.status = IcpStatus::Converged;
+            break;
+        }
+    }
+    Ok(phase)
+}
+
+/// One fitted step; `sigma` only from the point-to-plane fits.
+struct Step {
+    update: Isometry3<f64>,
+    constraint_ratio: f64,
+    sigma: Option<FitSigma>,
+}
+
+/// Point-to-plane (both plane metrics) or Kabsch; a failed plane fit is a
+/// zero step with ratio 0 (degenerate), a failed Kabsch a zero step.
+fn fit(corrs: &[Correspondence], config: &IcpConfig) -> Step {
+    match config.metric {
+        Metric::PointToPlane | Metric::PointToSurface => {
+            match point_to_plane(corrs, config.model) {
+                Some(f) => Step {
+                    update: f.update,
+                    constraint_ratio: f.constraint_ratio,
+                    sigma: Some(f.sigma),
+                },
+                None => Step {
+                    update: Isometry3::identity(),
+                    constraint_ratio: 0.0,
+                    sigma: None,
+                },
+            }
+        }
+        Metric::PointToPoint => Step {
+            update: point_to_point(corrs, config.model).unwrap_or_else(Isometry3::identity),
+            constraint_ratio: 1.0,
+            sigma: None,
+        },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    fn shift(x_m: f64) -> Isometry3<f64> {
+        Isometry3::from_parts(Translation3::new(x_m, 0.0, 0.0), UnitQuaternion::identity())
+    }
+
+    #[test]
+    fn converged_on_a_small_update_or_a_stall_only() {
+        let stop = Convergence {
+            lever_m: 100.0,
+            tolerance_m: 1e-3,
+        };
+        assert!(stop.converged(&shift(5e-4), &[]));
+        assert!(!stop.converged(&shift(2e-3), &[shift(0.0)]));
+        // jitter without a trend: net motion over four steps below 10 tolerances
+        let jitter: Vec<_> = [0.0, 0.004, 0.001, 0.005, 0.002].map(shift).to_vec();
+        assert!(stop.converged(&shift(2e-3), &jitter));
+        // a steady drift of 4 mm per step keeps going
+        let drift: Vec<_> = [0.0, 0.004, 0.008, 0.012, 0.016].map(shift).to_vec();
+        assert!(!stop.converged(&shift(4e-3), &drift));
+        // a rotation counts at the lever arm: 1e-4 rad at 100 m is 1 cm
+        let turn = Isometry3::from_parts(
+            Translation3::identity(),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, 1e-4),
+        );
+        assert!(!stop.converged(&turn, &[]));
+    }
+}

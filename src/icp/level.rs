@@ -1,0 +1,304 @@
+//! One level of the coarse-to-fine ladder: sample the moving DSM at that level,
+//! match against the reference's same level, run the loop (first on an even
+//! subset of the samples, then on all of them), and judge how it ended.
+
+use nalgebra::{Isometry3, Vector3};
+
+use super::associate::{block_order, Association, Matcher};
+use super::config::LADDER_SAMPLES;
+use super::iterate::{iterate, Convergence, Phase};
+use super::sample::{pixel_window, sample_overlap};
+use super::{IcpConfig, IcpError, IcpResult, IcpStatus, NnStatsSummary};
+use crate::fit::{Correspondence, FitSigma};
+use crate::geo::rigid::isometry_to_world;
+use crate::geo::Bounds;
+use crate::grid::{Grid, Pyramid};
+use crate::nn::{NnStats, PixelFrame, PlaneMemo};
+
+/// One level, sampled and ready to run.
+pub(super) struct Level<'a, R> {
+    reference: &'a R,
+    index: usize,
+    overlap: Bounds,
+    /// Query points: local x, y about the overlap centre, world heights (until `run`).
+    samples: Vec<Vector3<f64>>,
+    config: &'a IcpConfig,
+}
+
+/// How one level ended, in the local frame.
+pub(super) struct LevelOutcome {
+    pub t_ref_moving: Isometry3<f64>,
+    pub status: IcpStatus,
+    iterations: usize,
+    constraint_ratio: f64,
+    sigma: FitSigma,
+    /// The matches at the returned transform, over every sample.
+    final_association: Association,
+    nn: NnStats,
+}
+
+impl<'a, R: Pyramid> Level<'a, R> {
+    /// Samples the moving DSM inside `overlap` at level `index` (coarse levels
+    /// only bring the estimate near, so they take at most `LADDER_SAMPLES`).
+    pub fn sample<M: Pyramid>(
+        reference: &'a R,
+        moving: &M,
+        index: usize,
+        overlap: &Bounds,
+        origin_xy: &Vector3<f64>,
+        config: &'a IcpConfig,
+    ) -> Result<Self, IcpError> {
+        let mut mov = moving.open_level(index).map_err(IcpError::Read)?;
+        let sample_frame = PixelFrame::new(&mov.geotransform(), origin_xy);
+        let count = if index == 0 {
+            config.samples
+        } else {
+            config.samples.min(LADDER_SAMPLES)
+        };
+        let seed = config.seed ^ index as u64;
+        let samples = sample_overlap(&mut mov, &sample_frame, overlap, count, seed);
+        if let Some(e) = mov.take_error() {
+            return Err(IcpError::Read(e));
+        }
+        if samples.points.is_empty() {
+            return Err(IcpError::EmptyOverlap);
+        }
+        Ok(Level {
+            reference,
+            index,
+            overlap: *overlap,
+            samples: samples.points,
+            config,
+        })
+    }
+
+    /// A local frame origin for the whole registration: the overlap centre at
+    /// the mean sampled height (any fixed value works; this keeps z small).
+    pub fn origin(&self, origin_xy: &Vector3<f64>) -> Vector3<f64> {
+        let points = &self.samples;
+        let mean_z = points.iter().map(|p| p.z).sum::<f64>() / points.len() as f64;
+        Vector3::new(origin_xy.x, origin_xy.y, mean_z)
+    }
+
+    /// Runs the level from `t_ref_moving` (local frame about `origin`).
+    pub fn run(
+        mut self,
+        origin: &Vector3<f64>,
+        t_ref_moving: Isometry3<f64>,
+    ) -> Result<LevelOutcome, IcpError> {
+        let config = self.config;
+        for p in &mut self.samples {
+            p.z -= origin.z;
+        }
+        let ref_gt = self
+            .reference
+            .open_level(self.index)
+            .map_err(IcpError::Read)?
+            .geotransform();
+        let scale = (1u64 << self.index) as f64;
+        let matcher = Matcher {
+            reference: self.reference,
+            level: self.index,
+            frame: PixelFrame::new(&ref_gt, origin),
+            tau_m: (config.tau_m * scale).min(config.max_displacement_m.max(config.tau_m)),
+            metric: config.metric,
+        };
+        block_order(&mut self.samples, &matcher.frame, 256);
+        let stop = Convergence {
+            lever_m: self.overlap.half_diagonal(),
+            tolerance_m: config.tolerance_m * scale,
+        };
+        let mut nn = NnStats::default();
+        let mut full_memo = vec![PlaneMemo::default(); self.samples.len()];
+        let (phase, iterations) = ladder(
+            &matcher,
+            &self.samples,
+            &mut full_memo,
+            t_ref_moving,
+            &stop,
+            config,
+            &mut nn,
+        )?;
+        let t_ref_moving = phase.t_ref_moving;
+        let final_association = match_at(
+            &matcher,
+            &self.samples,
+            &mut full_memo,
+            &t_ref_moving,
+            &mut nn,
+        )?;
+        let min_inliers = 30.max(self.samples.len() / 100);
+        Ok(LevelOutcome {
+            t_ref_moving,
+            status: judge(&phase, final_association.corrs.len(), min_inliers),
+            iterations,
+            constraint_ratio: phase.constraint_ratio,
+            sigma: phase.sigma,
+            final_association,
+            nn,
+        })
+    }
+}
+
+/// Sample ladder: with many samples, converge on an even subset first (every
+/// k-th point in chunk order), then refine on all of them; the final
+/// iterations, and so the result, use every sample. Returns the last phase and
+/// the iterations of all phases.
+fn ladder<R: Pyramid>(
+    matcher: &Matcher<'_, R>,
+    points: &[Vector3<f64>],
+    full_memo: &mut [PlaneMemo],
+    mut t_ref_moving: Isometry3<f64>,
+    stop: &Convergence,
+    config: &IcpConfig,
+    nn: &mut NnStats,
+) -> Result<(Phase, usize), IcpError> {
+    let stride = points.len().div_ceil(LADDER_SAMPLES);
+    let subset: Vec<Vector3<f64>> = if stride >= 2 {
+        points.iter().step_by(stride).copied().collect()
+    } else {
+        Vec::new()
+    };
+    let mut subset_memo = vec![PlaneMemo::default(); subset.len()];
+    let mut phases: Vec<(&[Vector3<f64>], &mut [PlaneMemo])> = Vec::new();
+    if !subset.is_empty() {
+        phases.push((&subset, &mut subset_memo));
+    }
+    phases.push((points, full_memo));
+    let mut phase = Phase::default();
+    let mut iterations = 0;
+    for (points, memo) in phases {
+        let min_inliers = 30.max(points.len() / 100);
+        phase = iterate(t_ref_moving, min_inliers, stop, config, &mut |t| {
+            match_at(matcher, points, memo, t, nn)
+        })?;
+        t_ref_moving = phase.t_ref_moving;
+        iterations += phase.iterations;
+        if !matches!(
+            phase.status,
+            IcpStatus::Converged | IcpStatus::MaxIterations
+        ) {
+            break;
+        }
+    }
+    Ok((phase, iterations))
+}
+
+/// The matches of `points` at `t`, their search counters added to `nn`.
+fn match_at<R: Pyramid>(
+    matcher: &Matcher<'_, R>,
+    points: &[Vector3<f64>],
+    memo: &mut [PlaneMemo],
+    t: &Isometry3<f64>,
+    nn: &mut NnStats,
+) -> Result<Association, IcpError> {
+    let assoc = matcher.associate(points, memo, t).map_err(IcpError::Read)?;
+    nn.add(&assoc.nn);
+    Ok(assoc)
+}
+
+/// The level's status from its last phase and the final matches: too few of
+/// them, or a collapse below half the peak (the matches collapsed while the
+/// motion ran away; the peak is over the last phase, which used the same
+/// points) overrides a phase that looked fine.
+fn judge(phase: &Phase, final_inliers: usize, min_inliers: usize) -> IcpStatus {
+    let mut status = phase.status;
+    if status != IcpStatus::TooFewInliers && final_inliers < min_inliers {
+        status = IcpStatus::TooFewInliers;
+    }
+    if status != IcpStatus::TooFewInliers && final_inliers * 2 < phase.peak_inliers {
+        status = IcpStatus::Diverged;
+    }
+    status
+}
+
+impl LevelOutcome {
+    /// True when the coarse-to-fine ladder must stop here.
+    pub fn failed(&self) -> bool {
+        matches!(self.status, IcpStatus::TooFewInliers | IcpStatus::Diverged)
+    }
+
+    /// The registration's result: the transform taken to world coordinates
+    /// (the local frame is the world shifted by `origin`) and the statistics
+    /// of the final matches.
+    pub fn into_result(self, origin: &Vector3<f64>) -> IcpResult {
+        let matches = &self.final_association;
+        let plane: Vec<f64> = matches
+            .corrs
+            .iter()
+            .map(Correspondence::plane_residual_m)
+            .collect();
+        IcpResult {
+            t_ref_moving: isometry_to_world(&self.t_ref_moving, origin),
+            rmse_m: rms(&matches.distances_m),
+            rmse_plane_m: rms(&plane),
+            inliers: matches.corrs.len(),
+            samples: matches.queries,
+            overlap: matches.with_reference_below as f64 / matches.queries.max(1) as f64,
+            iterations: self.iterations,
+            status: self.status,
+            constraint_ratio: self.constraint_ratio,
+            sigma: self.sigma,
+            nn: NnStatsSummary {
+                queries: self.nn.queries,
+                pixels_visited: self.nn.pixels_visited,
+            },
+        }
+    }
+}
+
+/// The coarsest level whose overlap is still at least 64 px on its short side.
+pub(super) fn start_level<R: Pyramid, M: Pyramid>(
+    reference: &R,
+    moving: &M,
+    overlap: &Bounds,
+    max_level: usize,
+) -> usize {
+    let levels = reference.num_levels().min(moving.num_levels());
+    let mut best = 0;
+    for level in 1..levels.min(max_level + 1) {
+        let Ok(grid) = moving.open_level(level) else {
+            break;
+        };
+        match pixel_window(&grid, overlap) {
+            Some([c0, r0, c1, r1]) if (c1 - c0).min(r1 - r0) >= 64 => best = level,
+            _ => break,
+        }
+    }
+    best
+}
+
+fn rms(values: &[f64]) -> f64 {
+    if values.is_empty() {
+        return f64::NAN;
+    }
+    (values.iter().map(|v| v * v).sum::<f64>() / values.len() as f64).sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn judge_overrides_a_phase_whose_final_matches_collapsed() {
+        let phase = Phase {
+            status: IcpStatus::Converged,
+            peak_inliers: 1000,
+            ..Phase::default()
+        };
+        assert_eq!(judge(&phase, 900, 30), IcpStatus::Converged);
+        assert_eq!(judge(&phase, 400, 30), IcpStatus::Diverged);
+        assert_eq!(judge(&phase, 20, 30), IcpStatus::TooFewInliers);
+        let few = Phase {
+            status: IcpStatus::TooFewInliers,
+            ..phase
+        };
+        assert_eq!(judge(&few, 10, 30), IcpStatus::TooFewInliers);
+    }
+
+    #[test]
+    fn rms_of_nothing_is_nan() {
+        assert!(rms(&[]).is_nan());
+        assert_eq!(rms(&[3.0, 4.0, 0.0, 0.0]), 2.5);
+    }
+}

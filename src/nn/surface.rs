@@ -1,0 +1,145 @@
+//! The reference surface right below a query: bilinear height, tangent plane
+//! from a ring of pixels (memoised per query while it stays over one pixel), and
+//! the grid normal at a pixel for point-to-plane.
+
+use nalgebra::Vector3;
+
+use super::plane::{plane_fit, Plane};
+use super::PixelFrame;
+use crate::grid::Grid;
+
+/// A point of the reference surface with its tangent plane.
+#[derive(Clone, Copy, Debug)]
+pub struct SurfacePoint {
+    pub point: Vector3<f64>,
+    pub normal: Vector3<f64>,
+    /// RMS deviation of the neighbourhood from the fitted plane (walls, crowns).
+    pub roughness_m: f64,
+}
+
+/// The reference surface right below a query: the bilinear height of the four
+/// surrounding pixel centres, at the query's own (x, y), and a normal fitted on a
+/// ring of pixels around them that excludes those four. With no horizontal
+/// offset between query and surface point, and normal noise independent of the
+/// height noise, the plane residual is unbiased even on noisy DSMs (a 3D nearest
+/// neighbour picked among noisy pixels, or a normal sharing their noise, is
+/// not). None when any of the four is no-data: never interpolate across holes.
+pub fn surface_below<G: Grid + ?Sized>(
+    grid: &mut G,
+    frame: &PixelFrame,
+    query: &Vector3<f64>,
+) -> Option<SurfacePoint> {
+    surface_below_memo(grid, frame, query, &mut PlaneMemo::default())
+}
+
+/// The ring plane last fitted for one query, reused while the query stays over
+/// the same reference pixel (ICP's late iterations move queries by millimetres,
+/// so most of them do); valid for one grid only.
+#[derive(Clone, Copy, Debug)]
+pub struct PlaneMemo {
+    pixel: (i64, i64),
+    plane: Option<Plane>,
+}
+
+impl Default for PlaneMemo {
+    fn default() -> Self {
+        PlaneMemo {
+            pixel: (i64::MIN, i64::MIN),
+            plane: None,
+        }
+    }
+}
+
+/// `surface_below`, reusing the ring plane kept in `memo` when the query is
+/// over the same pixel as last time (same result, fewer fits).
+pub fn surface_below_memo<G: Grid + ?Sized>(
+    grid: &mut G,
+    frame: &PixelFrame,
+    query: &Vector3<f64>,
+    memo: &mut PlaneMemo,
+) -> Option<SurfacePoint> {
+    let (col_f, row_f) = frame.to_pixel(query);
+    let (u, v) = (col_f - 0.5, row_f - 0.5);
+    let (c0, r0) = (u.floor() as i64, v.floor() as i64);
+    let (fx, fy) = (u - c0 as f64, v - r0 as f64);
+    let h00 = grid.get(c0, r0) as f64;
+    let h10 = grid.get(c0 + 1, r0) as f64;
+    let h01 = grid.get(c0, r0 + 1) as f64;
+    let h11 = grid.get(c0 + 1, r0 + 1) as f64;
+    if h00.is_nan() || h10.is_nan() || h01.is_nan() || h11.is_nan() {
+        return None;
+    }
+    let h = h00 * (1.0 - fx) * (1.0 - fy)
+        + h10 * fx * (1.0 - fy)
+        + h01 * (1.0 - fx) * fy
+        + h11 * fx * fy;
+    let point = Vector3::new(query.x, query.y, h - frame.z_origin_m());
+    let (col, row) = (col_f.floor() as i64, row_f.floor() as i64);
+    if memo.pixel != (col, row) {
+        *memo = PlaneMemo {
+            pixel: (col, row),
+            plane: plane_fit(grid, frame, col, row, 2),
+        };
+    }
+    let plane = memo.plane?;
+    // The four interpolated pixels must lie on the ring's plane: a spike or a
+    // wall among them makes the bilinear height meaningless.
+    let limit_m = (4.0 * plane.rms_m).max(0.5);
+    for (c, r, hv) in [
+        (c0, r0, h00),
+        (c0 + 1, r0, h10),
+        (c0, r0 + 1, h01),
+        (c0 + 1, r0 + 1, h11),
+    ] {
+        let dx = (c - col) as f64 * frame.gsd_x_m();
+        let dy = -((r - row) as f64) * frame.gsd_y_m();
+        if (hv - plane.height_at(dx, dy)).abs() > limit_m {
+            return None;
+        }
+    }
+    Some(SurfacePoint {
+        point,
+        normal: plane.normal(),
+        roughness_m: plane.rms_m,
+    })
+}
+
+/// Pixel radius of the plane fitted for normals: a 7 x 7 window keeps the
+/// slope noise (sigma / (gsd * 14)) well below real slopes, so the fit is not
+/// diluted by noisy normals.
+pub const NORMAL_RADIUS_PX: i64 = 3;
+const _: () = assert!((2 * NORMAL_RADIUS_PX + 1).pow(2) <= 49);
+
+/// Unit surface normal at a reference pixel from a least-squares plane over its
+/// (2r+1)^2 neighbourhood (valid pixels only); vertical when too few neighbours.
+pub fn normal_at<G: Grid + ?Sized>(
+    grid: &mut G,
+    frame: &PixelFrame,
+    col: i64,
+    row: i64,
+) -> Vector3<f64> {
+    plane_fit(grid, frame, col, row, 1).map_or(Vector3::z(), |p| p.normal())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geo::GeoTransform;
+    use crate::grid::MemGrid;
+
+    #[test]
+    fn normal_of_a_slope() {
+        let gt = GeoTransform::north_up(0.0, 10.0, 0.5, 0.5);
+        // z = 0.2 x  (x grows with col)
+        let mut grid = MemGrid::from_fn(10, 10, gt, |c, _| 0.2 * 0.5 * c as f32);
+        let frame = PixelFrame::new(&gt, &Vector3::zeros());
+        let n = normal_at(&mut grid, &frame, 4, 4);
+        let expected = Vector3::new(-0.2, 0.0, 1.0).normalize();
+        assert!((n - expected).norm() < 1e-6, "{n:?}");
+        // z = 0.3 y: y decreases with row
+        let mut grid = MemGrid::from_fn(10, 10, gt, |_, r| -0.3 * 0.5 * r as f32);
+        let n = normal_at(&mut grid, &frame, 4, 4);
+        let expected = Vector3::new(0.0, -0.3, 1.0).normalize();
+        assert!((n - expected).norm() < 1e-6, "{n:?}");
+    }
+}
