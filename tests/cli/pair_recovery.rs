@@ -7,6 +7,8 @@ use std::process::Command;
 
 use nalgebra::{Matrix4, Vector4};
 
+use crate::util::{bin, dsmgen};
+
 fn run(cmd: &mut Command) -> std::process::Output {
     let out = cmd.output().unwrap();
     assert!(
@@ -57,7 +59,7 @@ const TARGET: Tolerance = Tolerance {
 fn check_pair(size: u32, seed: u32, dsmgen_args: &[&str], tol: Tolerance) {
     let dir = tempfile::tempdir().unwrap();
     let tiles = dir.path().join("tiles");
-    run(Command::new(env!("CARGO_BIN_EXE_dsmgen"))
+    run(dsmgen()
         .args(["tiles", "--count", "2", "--size"])
         .arg(size.to_string())
         .arg("--seed")
@@ -66,7 +68,7 @@ fn check_pair(size: u32, seed: u32, dsmgen_args: &[&str], tol: Tolerance) {
         .arg("--out")
         .arg(&tiles));
     let store = dir.path().join("s.zarr");
-    run(Command::new(env!("CARGO_BIN_EXE_dsmstream"))
+    run(bin()
         .arg("ingest")
         .arg(&tiles)
         .arg("--store")
@@ -83,7 +85,7 @@ fn check_pair(size: u32, seed: u32, dsmgen_args: &[&str], tol: Tolerance) {
     for (reference, moving, k_ref, k_mov) in
         [("tile_00", "tile_01", 0, 1), ("tile_01", "tile_00", 1, 0)]
     {
-        let out = run(Command::new(env!("CARGO_BIN_EXE_dsmstream"))
+        let out = run(bin()
             .arg("pair")
             .arg(&store)
             .args([reference, moving, "--json"]));

@@ -3,7 +3,7 @@
 //! real data (CODEM photogrammetric DSM against its lidar).
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
 use dsmstream::eval::{diff_stats, DiffStats};
 use dsmstream::geotiff::reader::GeoTiffReader;
@@ -12,13 +12,7 @@ use dsmstream::raster::{Crs, GeoTransform};
 use dsmstream::synth::output::{epsg_crs, write_truth_grid, Truth};
 use serde_json::{json, Value};
 
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_dsmstream"))
-}
-
-fn fixtures() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures")
-}
+use crate::util::{bin, fixtures, ok};
 
 fn run(args: &[&dyn AsRef<std::ffi::OsStr>]) -> Output {
     let mut c = bin();
@@ -26,16 +20,6 @@ fn run(args: &[&dyn AsRef<std::ffi::OsStr>]) -> Output {
         c.arg(a);
     }
     c.output().unwrap()
-}
-
-fn ok(out: Output) -> Output {
-    assert!(
-        out.status.success(),
-        "exit {:?}: {}",
-        out.status.code(),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    out
 }
 
 /// Ingest a fixture folder into `dir/c.zarr`.

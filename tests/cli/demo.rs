@@ -4,9 +4,7 @@
 //! generated 4 x 4 grid with known truth (`demo --data`) the fused DSM is
 //! closest to the true surface with the full graph.
 
-use std::process::Command;
-
-mod common;
+use crate::util::{bin, dsmgen_tiles};
 
 /// One row of a side-by-side table: pairs rmse_tau, fused-truth rmse_tau and NMAD.
 struct Row {
@@ -34,7 +32,7 @@ fn row(table: &str, name: &str) -> Row {
 
 /// `dsmstream demo <args>` from the repository root; its stdout.
 fn demo(args: &[&std::ffi::OsStr]) -> String {
-    let out = Command::new(env!("CARGO_BIN_EXE_dsmstream"))
+    let out = bin()
         .current_dir(env!("CARGO_MANIFEST_DIR"))
         .arg("demo")
         .args(args)
@@ -83,7 +81,7 @@ fn demo_runs_both_collections_and_full_beats_mst_on_real_terrain() {
 fn fused_grid_is_closest_to_the_truth_with_the_full_graph() {
     let dir = tempfile::tempdir().unwrap();
     let tiles = dir.path().join("tiles");
-    common::dsmgen_tiles(
+    dsmgen_tiles(
         &[
             "--layout", "grid", "--rows", "4", "--cols", "4", "--size", "384", "--seed", "12",
         ],

@@ -1,33 +1,8 @@
 //! Integration tests of `pair` and `align` on the bundled generated collection.
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
-mod common;
-
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_dsmstream"))
-}
-
-fn fixtures() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures")
-}
-
-fn ingest(inputs: &[PathBuf], store: &Path) {
-    let out = bin()
-        .arg("ingest")
-        .args(inputs)
-        .arg("--store")
-        .arg(store)
-        .arg("-q")
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-}
+use crate::util::{bin, dsmgen_tiles, fixtures, ingest};
 
 /// `dsmstream pair <store> <args>`.
 fn pair(store: &Path, args: &[&str]) -> std::process::Output {
@@ -214,7 +189,7 @@ fn pair_refuses_an_overlap_that_is_all_no_data() {
 /// A generated collection (`dsmgen tiles` with `layout_args`), ingested, with its truth.
 fn generated(dir: &Path, layout_args: &[&str]) -> (PathBuf, dsmstream::synth::output::Truth) {
     let tiles = dir.join("tiles");
-    common::dsmgen_tiles(layout_args, &tiles);
+    dsmgen_tiles(layout_args, &tiles);
     let store = dir.join("c.zarr");
     ingest(std::slice::from_ref(&tiles), &store);
     let truth = dsmstream::synth::output::Truth::load(&tiles.join("truth.json")).unwrap();

@@ -11,8 +11,10 @@ use dsmstream::poses::PosesFile;
 use dsmstream::synth::Truth;
 use serde_json::Value;
 
-fn fixtures() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/real/ttp2015")
+use crate::util::fixtures;
+
+fn ttp_fixtures() -> PathBuf {
+    fixtures().join("real/ttp2015")
 }
 
 fn run(bin: &str, args: &[&dyn AsRef<OsStr>]) -> Output {
@@ -57,8 +59,8 @@ fn ttp_grid_cut_is_recovered_aligned_and_fused() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     let (source, lidar) = (
-        fixtures().join("ttp_dsm_source.tif"),
-        fixtures().join("TTP_15.laz"),
+        ttp_fixtures().join("ttp_dsm_source.tif"),
+        ttp_fixtures().join("TTP_15.laz"),
     );
     let tiles = d.join("tiles");
     run(
@@ -172,7 +174,7 @@ fn cut_refuses_a_geographic_source_and_a_window_without_land() {
     let dir = tempfile::tempdir().unwrap();
     let srtm =
         Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/real/demcompare_srtm/srtm_ref.tif");
-    let source = fixtures().join("ttp_dsm_source.tif");
+    let source = ttp_fixtures().join("ttp_dsm_source.tif");
     let cases: [(&Path, &[&str], &str); 2] = [
         (&srtm, &[], "geographic"),
         // the top-right corner of the ttp raster is lake: no valid height

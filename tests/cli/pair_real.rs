@@ -12,33 +12,11 @@
 //! (demcompare's own dz bias: -0.02 m).
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_dsmstream"))
-}
+use crate::util::{bin, fixtures, ingest, text};
 
 fn fixture(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("fixtures/real/demcompare_srtm")
-        .join(name)
-}
-
-fn text(bytes: &[u8]) -> String {
-    String::from_utf8_lossy(bytes).into_owned()
-}
-
-/// Ingests `inputs` (files or folders) into `store`.
-fn ingest(inputs: &[PathBuf], store: &Path) {
-    let out = bin()
-        .arg("ingest")
-        .args(inputs)
-        .arg("--store")
-        .arg(store)
-        .arg("-q")
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{}", text(&out.stderr));
+    fixtures().join("real/demcompare_srtm").join(name)
 }
 
 /// Ingests the two UTM SRTM rasters into `dir`/s.zarr.
@@ -110,7 +88,7 @@ fn srtm_shift_beyond_the_default_cap_is_flagged_not_returned() {
 fn xdem_crops_that_agree_give_the_identity() {
     let dir = tempfile::tempdir().unwrap();
     let store = dir.path().join("x.zarr");
-    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/real/xdem_gdal");
+    let data = fixtures().join("real/xdem_gdal");
     ingest(&[data], &store);
     let out = bin()
         .arg("eval")

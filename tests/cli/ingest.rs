@@ -3,23 +3,16 @@
 //! and demcompare's SRTM tile in EPSG:4326 (must be refused, exit code 2).
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
+
+use crate::util::{assert_ok, bin, fixtures, text};
 
 fn fixture(rel: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("fixtures/real")
-        .join(rel)
+    fixtures().join("real").join(rel)
 }
 
 fn dsmstream(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_dsmstream"))
-        .args(args)
-        .output()
-        .expect("run dsmstream")
-}
-
-fn text(bytes: &[u8]) -> String {
-    String::from_utf8_lossy(bytes).into_owned()
+    bin().args(args).output().expect("run dsmstream")
 }
 
 fn ingest(inputs: &[&Path], store: &Path, extra: &[&str]) -> Output {
@@ -30,16 +23,6 @@ fn ingest(inputs: &[&Path], store: &Path, extra: &[&str]) -> Output {
     args.extend(extra.iter().map(|s| s.to_string()));
     let refs: Vec<&str> = args.iter().map(String::as_str).collect();
     dsmstream(&refs)
-}
-
-fn assert_ok(out: &Output) {
-    assert!(
-        out.status.success(),
-        "exit {:?}\nstdout: {}\nstderr: {}",
-        out.status.code(),
-        text(&out.stdout),
-        text(&out.stderr)
-    );
 }
 
 /// Every file under `dir` with its bytes.

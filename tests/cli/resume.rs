@@ -11,11 +11,7 @@ use std::time::{Duration, Instant};
 
 use dsmstream::poses::PosesFile;
 
-mod common;
-
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_dsmstream"))
-}
+use crate::util::{bin, dsmgen_tiles, fixtures};
 
 /// Arguments shared by every run (the journal header must match on resume).
 const ALIGN_ARGS: &[&str] = &["--threads", "1", "-q"];
@@ -62,7 +58,7 @@ fn reference() -> &'static Reference {
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
         let store = dir.join("grid.zarr");
-        let fixtures = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/synth/grid2x2");
+        let fixtures = fixtures().join("synth/grid2x2");
         let mut ingest = bin();
         ingest
             .arg("ingest")
@@ -99,7 +95,7 @@ fn complete_lines(text: &str) -> Vec<&str> {
 /// with the poses of one uninterrupted run.
 fn slow_collection(dir: &Path) -> (PathBuf, PosesFile, usize) {
     let tiles = dir.join("tiles");
-    common::dsmgen_tiles(
+    dsmgen_tiles(
         &[
             "--layout", "grid", "--rows", "3", "--cols", "3", "--size", "384", "--seed", "5",
         ],
