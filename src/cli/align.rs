@@ -4,14 +4,13 @@
 use std::path::PathBuf;
 
 use dsmstream::align::{align, AlignConfig, AlignError};
-use dsmstream::cache::ChunkCache;
 use dsmstream::graph::Weighting;
 use dsmstream::pipeline::PipelineConfig;
 use dsmstream::poses::GraphKind;
 use dsmstream::InputError;
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
-use super::pair::{open_store, IcpArgs};
+use super::common::{emit_line, open_store, progress_bar, warn_line, ResourceArgs};
+use super::icp_args::IcpArgs;
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug)]
 pub enum GraphArg {
@@ -37,12 +36,8 @@ pub struct Args {
     /// Where to write poses.json (written to a temporary name, then renamed).
     #[arg(long)]
     pub out: PathBuf,
-    /// Chunk cache budget in MiB, shared by all workers.
-    #[arg(long, default_value_t = 256)]
-    pub cache_mb: usize,
-    /// ICP worker threads (default: all cores).
-    #[arg(long)]
-    pub threads: Option<usize>,
+    #[command(flatten)]
+    pub resources: ResourceArgs,
     /// full (motion averaging) or mst (greedy spanning tree baseline).
     #[arg(long, value_enum, default_value = "full")]
     pub graph: GraphArg,
@@ -66,12 +61,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if !(0.0..=1.0).contains(&args.min_overlap) {
         return Err(InputError::new("--min-overlap must be within [0, 1]").into());
     }
-    let threads = args
-        .threads
-        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
-    if threads == 0 {
-        return Err(InputError::new("--threads must be at least 1").into());
-    }
+    let threads = args.resources.threads();
     let config = AlignConfig {
         pipeline: PipelineConfig {
             threads,
@@ -91,15 +81,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         output: args.out.clone(),
     };
     let store = open_store(&args.store)?;
-    let cache = ChunkCache::new(args.cache_mb.max(1) << 20);
-    let bar = ProgressBar::with_draw_target(Some(0), ProgressDrawTarget::stderr());
-    bar.set_style(
-        ProgressStyle::with_template("{bar:30} {pos}/{len} pairs {per_sec} eta {eta} {msg}")
-            .expect("valid template"),
-    );
-    if tracing::enabled!(tracing::Level::ERROR) && !tracing::enabled!(tracing::Level::WARN) {
-        bar.set_draw_target(ProgressDrawTarget::hidden());
-    }
+    let cache = args.resources.cache();
+    let bar = progress_bar("pairs");
     let started = std::time::Instant::now();
     let outcome = align(&store, &cache, &config, &mut |_, done, total| {
         bar.set_length(total as u64);
@@ -125,27 +108,28 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .map(|r| format!("{}-{} ({})", r.reference, r.moving, r.why_no_edge()))
         .collect();
     for f in &failed {
-        eprintln!("warning: pair {f} gave no edge");
+        warn_line(&format!("pair {f} gave no edge"));
     }
     if outcome.weights != config.weights && matches!(config.graph, GraphKind::Full) {
-        eprintln!(
-            "warning: some pairs have no standard errors (journaled by an older version, or --metric point-to-point): paper weights used"
+        warn_line(
+            "some pairs have no standard errors (journaled by an older version, or --metric point-to-point): paper weights used",
         );
     }
     if outcome.components.len() > 1 {
-        eprintln!(
-            "warning: the scene graph has {} disconnected components, each solved on its own:",
+        let mut text = format!(
+            "the scene graph has {} disconnected components, each solved on its own:",
             outcome.components.len()
         );
         for c in &outcome.components {
-            eprintln!("  {}", c.join(", "));
+            text.push_str(&format!("\n  {}", c.join(", ")));
         }
+        warn_line(&text);
     }
     let p = &outcome.poses;
     let kept: Vec<&dsmstream::poses::EdgeEntry> = p.edges.iter().filter(|e| !e.dropped).collect();
     let mean_rmse = kept.iter().map(|e| e.rmse_m).sum::<f64>() / kept.len().max(1) as f64;
     let max_res = kept.iter().map(|e| e.residual_m).fold(0.0, f64::max);
-    println!(
+    emit_line(&format!(
         "aligned {} DSMs: {} edges ({} dropped), {} pairs without edge, graph {}{}, gauge {}, {:.1} s",
         p.poses.len(),
         p.edges.len(),
@@ -161,8 +145,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         },
         p.gauge.label(),
         started.elapsed().as_secs_f64()
-    );
-    println!("mean pairwise ICP rmse {mean_rmse:.3} m; largest edge residual after averaging {max_res:.3} m");
-    println!("poses written to {}", args.out.display());
+    ))?;
+    emit_line(&format!("mean pairwise ICP rmse {mean_rmse:.3} m; largest edge residual after averaging {max_res:.3} m"))?;
+    emit_line(&format!("poses written to {}", args.out.display()))?;
     Ok(())
 }

@@ -46,7 +46,7 @@ fn srtm_shift_of_3_by_5_pixels_is_found() {
     let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let result = &json["result"];
     assert_eq!(result["status"], "converged", "{result}");
-    let m = &result["m_world"];
+    let m = &result["matrix_world"];
     let t = |row: usize| m[row][3].as_f64().unwrap();
     let (dx, dy, dz) = (t(0), t(1), t(2));
     assert!(
@@ -120,7 +120,7 @@ fn xdem_crops_that_agree_give_the_identity() {
             .unwrap();
         assert!(out.status.success(), "{}", text(&out.stderr));
         let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-        let m = &json["result"]["m_world"];
+        let m = &json["result"]["matrix_world"];
         let at = |r: usize, p: [f64; 3]| {
             (0..3)
                 .map(|c| m[r][c].as_f64().unwrap() * p[c])

@@ -90,7 +90,7 @@ fn check_pair(size: u32, seed: u32, dsmgen_args: &[&str], tol: Tolerance) {
             .arg(&store)
             .args([reference, moving, "--json"]));
         let doc: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-        let est = matrix(&doc["result"]["m_world"]);
+        let est = matrix(&doc["result"]["matrix_world"]);
         let rel_truth = m(k_ref).try_inverse().unwrap() * m(k_mov);
         let (d_m, a_deg) = error(&est, &rel_truth, &corners);
         assert_eq!(doc["result"]["status"], "converged");

@@ -148,7 +148,7 @@ struct BigArgs {
     #[arg(long)]
     out: PathBuf,
     /// Also write the same pixels, rendered independently of the COG writer,
-    /// as a NumPy .npy file (for tools/check_cog.py; size^2 * 4 bytes).
+    /// as a NumPy .npy file (for tools/scripts/check_cog.py; size^2 * 4 bytes).
     #[arg(long)]
     npy: Option<PathBuf>,
 }

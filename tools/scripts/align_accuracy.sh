@@ -7,13 +7,13 @@
 # and per DSM (worst m / worst deg after the best rigid gauge), edges dropped,
 # and the align time.
 #
-# Usage: tools/align_accuracy.sh [SPEC ...]   (from the repository root, after
+# Usage: tools/scripts/align_accuracy.sh [SPEC ...]   (from the repository root, after
 #        cargo build --release --bins)
 #   SPEC = chain:SIZE:SEED or grid:SIZE:SEED (default: chains and 4x4 grids of
 #   384, 1024 and 2048 px, seed 12).
 # Env:   WORK (default: a new temp dir), BIN (default target/release),
 #        ALIGN_ARGS (extra align flags, e.g. "--samples 50000"), KEEP=1 keeps WORK.
-# Needs python3 with numpy (tools/compare_poses.py).
+# Needs python3 with numpy (tools/scripts/compare_poses.py).
 set -euo pipefail
 
 BIN=${BIN:-target/release}
@@ -25,7 +25,7 @@ specs=("$@")
 ds="$BIN/dsmstream"
 
 errors() {  # poses truth -> "pair_m pair_deg dsm_m dsm_deg"
-  python3 tools/compare_poses.py "$1" "$2" | awk '
+  python3 tools/scripts/compare_poses.py "$1" "$2" | awk '
     /^worst/ {pm=$2; pd=$4}
     /^per-DSM worst/ {dm=$3; dd=$5}
     END {printf "%.3f / %.4f | %.3f / %.4f", pm, pd, dm, dd}'

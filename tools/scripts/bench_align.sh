@@ -4,8 +4,8 @@
 # same budget, on generated grid collections of growing size, to show that
 # memory is the cache budget plus a constant, whatever the number of DSMs.
 #
-# Usage: tools/bench_align.sh ROWSxCOLSxSIZE...   (from the repository root)
-#   e.g. tools/bench_align.sh 4x4x4096 8x8x4096 8x8x1024 16x16x1024
+# Usage: tools/scripts/bench_align.sh ROWSxCOLSxSIZE...   (from the repository root)
+#   e.g. tools/scripts/bench_align.sh 4x4x4096 8x8x4096 8x8x1024 16x16x1024
 # Env:   BENCH_DIR (default /tmp/dsmstream_bench), BIN (default target/release),
 #        CACHE_MB (128), THREADS (default: all cores), OVERLAP (0.3),
 #        ALIGN_ARGS (extra align flags), FUSE=0 skips fuse, KEEP=1 keeps
@@ -13,7 +13,7 @@
 #
 # Each collection: `dsmgen tiles --layout grid` (seed 1, 0.5 m GSD), `dsmstream
 # ingest`, `dsmstream align`, `dsmstream fuse`, each under `/usr/bin/time -v`. Prints one
-# Markdown row per collection for tools/bench_results.md; logs go to BENCH_DIR.
+# Markdown row per collection for tools/results/bench_results.md; logs go to BENCH_DIR.
 set -euo pipefail
 
 BENCH_DIR=${BENCH_DIR:-/tmp/dsmstream_bench}

@@ -5,8 +5,8 @@ multi-threaded. The Rust side is timed by the ignored unit test
 `geotiff::reader::tests::bench_streaming_read` (see its doc comment).
 
 Usage:
-  python3 tools/bench_geotiff_read.py make /tmp/big.tif [size=20000] [tile=256]
-  python3 tools/bench_geotiff_read.py gdal /tmp/big.tif [band_rows=512]
+  python3 tools/scripts/bench_geotiff_read.py make /tmp/big.tif [size=20000] [tile=256]
+  python3 tools/scripts/bench_geotiff_read.py gdal /tmp/big.tif [band_rows=512]
 """
 
 import os

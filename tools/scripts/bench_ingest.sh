@@ -4,13 +4,13 @@
 # side in one run: wall time, CPU time and peak RSS from `/usr/bin/time -v`,
 # RUNS runs of each (interleaved, a fresh output store every run), medians.
 #
-# Usage: tools/bench_ingest.sh [RUNS]          (from the repository root)
+# Usage: tools/scripts/bench_ingest.sh [RUNS]          (from the repository root)
 # Env:   BENCH_DIR (default /tmp/dsmstream_bench), SIZE (default 20000),
 #        BIN (default target/release), INPUT (default $BENCH_DIR/big_$SIZE.tif)
 #
 # Needs a release build (`cargo build --release`) and gdal-bin, which this
 # script installs with apt-get when gdal_translate is missing (benchmark only;
-# the tests never need GDAL). Prints a Markdown table for tools/bench_results.md.
+# the tests never need GDAL). Prints a Markdown table for tools/results/bench_results.md.
 set -euo pipefail
 
 RUNS=${1:-3}

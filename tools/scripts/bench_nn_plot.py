@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
-"""Plot bench_nn results (tools/bench_nn_results.csv) like the paper's Fig. 5/6:
+"""Plot bench_nn results (tools/results/bench_nn_results.csv) like the paper's Fig. 5/6:
 NN time per iteration, end-to-end wall time and peak RSS against the number of
 reference points, DSM-ICP (grid NN through a 64 MB chunk cache) vs k-d tree ICP.
 
-Usage: python3 tools/bench_nn_plot.py [results.csv] [out.png]   (needs matplotlib)
+Usage: python3 tools/scripts/bench_nn_plot.py [results.csv] [out.png]   (needs matplotlib)
 """
 import csv
 import math
@@ -34,8 +34,8 @@ def label(v):
 
 
 def main():
-    src = sys.argv[1] if len(sys.argv) > 1 else "tools/bench_nn_results.csv"
-    dst = sys.argv[2] if len(sys.argv) > 2 else "tools/bench_nn_results.png"
+    src = sys.argv[1] if len(sys.argv) > 1 else "tools/results/bench_nn_results.csv"
+    dst = sys.argv[2] if len(sys.argv) > 2 else "tools/results/bench_nn_results.png"
     rows = read(src)
     pts = [r["points_m"] for r in rows]
     panels = [

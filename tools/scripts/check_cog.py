@@ -8,7 +8,7 @@ no-data-aware 2x mean of the level above, and runs `rio cogeo validate`.
 
     pip install rasterio rio-cogeo numpy
     dsmgen big --size 3000 --out /tmp/big.tif --npy /tmp/big.npy
-    python3 tools/check_cog.py /tmp/big.tif --expect /tmp/big.npy
+    python3 tools/scripts/check_cog.py /tmp/big.tif --expect /tmp/big.npy
 
 Exit status 0 when every check passes, 1 otherwise. Not run by cargo test.
 """

@@ -12,7 +12,7 @@ for no-data), and the stored level 0 is read with zarr-python. Geotransform,
 size, CRS and every pixel must equal what GDAL reads (NaN == NaN).
 
     pip install rasterio zarr numpy
-    python3 tools/check_fused.py fused.tif [--dsmstream target/release/dsmstream]
+    python3 tools/scripts/check_fused.py fused.tif [--dsmstream target/release/dsmstream]
 
 Exit status 0 when every check passes, 1 otherwise. Not run by cargo test.
 """

@@ -15,7 +15,7 @@ Reads a block of rows at a time, so large stores are fine.
 Prints a table and exits 1 on any mismatch, 2 on bad usage.
 
     pip install zarr numpy rasterio
-    python3 tools/check_zarr.py collection.zarr
+    python3 tools/scripts/check_zarr.py collection.zarr
 """
 
 import argparse

@@ -7,7 +7,7 @@ noise, 2 % spikes, voids, changed buildings, shifts up to 3 m and rotations up t
 0.03 deg per axis; tile_01 is registered onto tile_00). Every method runs in its
 own process under /usr/bin/time (wall time, peak RSS) and its 4x4 transform is
 compared with truth.json: the worst displacement at the corners of the overlap
-and the rotation error (tools/truth_errors.py).
+and the rotation error (tools/scripts/truth_errors.py).
 
 Methods:
 - dsmstream: `dsmstream pair` with its defaults (the store is ingested first;
@@ -23,7 +23,7 @@ dependencies (the tests never import them):
 
     python3 -m venv /tmp/peers && /tmp/peers/bin/pip install xdem open3d
     cargo build --release --bins
-    /tmp/peers/bin/python tools/compare_peers.py [--cases 1:1024 7:2048] [--methods ...]
+    /tmp/peers/bin/python tools/scripts/compare_peers.py [--cases 1:1024 7:2048] [--methods ...]
 """
 import argparse, json, os, re, subprocess, sys, tempfile
 
@@ -132,7 +132,7 @@ def main():
                 if method == "dsmstream":
                     _, ingest_s, ingest_mb = timed([dsm, "ingest", tiles, "--store", store, "-q"])
                     out, secs, mb = timed([dsm, "pair", store, "tile_00", "tile_01", "--json"])
-                    est = json.loads(out)["result"]["m_world"]
+                    est = json.loads(out)["result"]["matrix_world"]
                     note = f" (+ ingest {ingest_s:.1f} s, {ingest_mb:.0f} MiB)"
                 else:
                     out, secs, mb = timed([sys.executable, __file__, "--one", method, ref, mov])

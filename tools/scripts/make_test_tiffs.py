@@ -14,7 +14,7 @@ pixels/, NaN where GDAL's no-data mask says no-data; identical rasters share one
 file). For the real rasters in fixtures/real/ it records the same metadata plus
 the valid-pixel count and sum and a deterministic sample of pixels.
 
-Usage: pip install rasterio numpy; python3 tools/make_test_tiffs.py
+Usage: pip install rasterio numpy; python3 tools/scripts/make_test_tiffs.py
 Re-running rewrites fixtures/geotiff/ from scratch (deterministic data).
 """
 
@@ -246,7 +246,7 @@ def expect_real(path):
 
 README = """# GeoTIFF reader fixtures (generated: do not edit)
 
-Made by `tools/make_test_tiffs.py` with GDAL {gdal} (rasterio {rio} wheel); re-running
+Made by `tools/scripts/make_test_tiffs.py` with GDAL {gdal} (rasterio {rio} wheel); re-running
 it rewrites this folder byte for byte. `expected.json` holds what GDAL reports for
 each file: `good` (readable: metadata and `pixels/*.bin`, width*height little-endian
 f32 with NaN where GDAL's no-data mask is set), `bad` (files the reader must refuse,
@@ -403,7 +403,7 @@ def main():
     real = [expect_real(p) for p in sorted(glob.glob(os.path.join(ROOT, "fixtures/real/*/*.tif")))]
 
     expected = {
-        "generator": "tools/make_test_tiffs.py",
+        "generator": "tools/scripts/make_test_tiffs.py",
         "gdal_version": rasterio.__gdal_version__,
         "rasterio_version": rasterio.__version__,
         "note": "pixels/*.bin: width*height little-endian f32, row-major, NaN = no-data",

@@ -7,7 +7,7 @@ and inverse at each sample count, and prints a table: worst displacement at the
 overlap corners, rotation error, yaw error, the reported one-sigma yaw, and the
 wall time per pair.
 
-    python3 tools/pair_accuracy.py [--bin target/release] [--samples 50000 200000]
+    python3 tools/scripts/pair_accuracy.py [--bin target/release] [--samples 50000 200000]
         [--cases 1:1024 3:768 ...]   (seed:size; with several sizes, a row per size too)
 """
 import argparse, json, subprocess, tempfile, time, os, sys

@@ -4,7 +4,7 @@
 # (`dsmgen cut`, tile_00 left in place), then ingest, align (full graph and
 # spanning tree, gauge fixed on tile_00), fuse and eval. Prints the README table.
 #
-# Usage: tools/ttp_collection.sh            (from the repository root, after
+# Usage: tools/scripts/ttp_collection.sh            (from the repository root, after
 #        cargo build --release --bins)
 # Env:   WORK (default: a new temp dir), BIN (default target/release),
 #        SEED (1), CUT_ARGS (default: the README's layout), KEEP=1 keeps WORK.

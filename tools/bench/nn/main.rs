@@ -12,11 +12,9 @@
 //! Both methods use the same `IcpConfig` (point-to-point Kabsch, full
 //! resolution, tau 10 m), the same samples, and the same rayon pool.
 
-#[path = "bench_nn_report.rs"]
-mod bench_nn_report;
-#[path = "bench_nn_run.rs"]
-mod bench_nn_run;
 mod kdtree_icp;
+mod report;
+mod run;
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -33,8 +31,8 @@ use nalgebra::{Matrix4, Point3, Vector3};
 use rayon::prelude::*;
 use serde_json::{json, Value};
 
-pub use bench_nn_run::Prep;
 use kdtree_icp::{load_cloud, queries, register_kd, KdReference, Queries};
+pub use run::Prep;
 
 #[derive(Parser)]
 #[command(
@@ -87,9 +85,9 @@ pub struct RunArgs {
     /// Skip the k-d tree above this many reference pixels (0 = never skip).
     #[arg(long, default_value_t = 0)]
     pub kd_max_pixels: u64,
-    #[arg(long, default_value = "tools/bench_nn_results.csv")]
+    #[arg(long, default_value = "tools/results/bench_nn_results.csv")]
     pub csv: PathBuf,
-    #[arg(long, default_value = "tools/bench_nn_results.md")]
+    #[arg(long, default_value = "tools/results/bench_nn_results.md")]
     pub markdown: PathBuf,
 }
 
@@ -102,7 +100,7 @@ fn main() -> anyhow::Result<()> {
         .with_writer(std::io::stderr)
         .init();
     match Cli::parse().command {
-        Command::Run(a) => bench_nn_run::run(a),
+        Command::Run(a) => run::run(a),
         Command::Dsm(a) => {
             println!("{}", dsm_side(&a)?);
             Ok(())

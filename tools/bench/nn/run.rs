@@ -8,7 +8,7 @@ use std::time::Instant;
 use anyhow::{bail, Context};
 use serde_json::{json, Value};
 
-use crate::bench_nn_report::{self, write_csv, write_markdown, Row};
+use crate::report::{self, write_csv, write_markdown, Row};
 use crate::RunArgs;
 
 /// The moving DSM: 700 x 700 px, 1 m inside the references' top-left corner,
@@ -71,7 +71,7 @@ pub fn run(a: RunArgs) -> anyhow::Result<()> {
         rows.push(row);
         write_csv(&a.csv, &rows)?;
     }
-    println!("{}", bench_nn_report::table(&rows));
+    println!("{}", report::table(&rows));
     let command = std::env::args().collect::<Vec<_>>().join(" ");
     write_markdown(&a.markdown, &rows, &command, &commands)?;
     Ok(())
