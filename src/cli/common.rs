@@ -210,7 +210,10 @@ mod tests {
         assert_eq!((ok.r.threads(), ok.r.cache_mb), (3, 1));
         let none = T::try_parse_from(["t"]).unwrap().r;
         assert!(none.threads() >= 1);
-        assert_eq!(format!("{none:?}"), format!("{:?}", ResourceArgs::default()));
+        assert_eq!(
+            format!("{none:?}"),
+            format!("{:?}", ResourceArgs::default())
+        );
     }
 
     #[test]

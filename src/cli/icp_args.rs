@@ -111,9 +111,18 @@ mod tests {
         let c = T::try_parse_from(["t"]).unwrap().icp.to_config().unwrap();
         let d = IcpConfig::default();
         assert_eq!((c.model, c.metric), (d.model, d.metric));
-        assert_eq!((c.tau_m, c.samples, c.max_iter), (d.tau_m, d.samples, d.max_iter));
-        assert_eq!((c.max_displacement_m, c.max_level), (d.max_displacement_m, d.max_level));
-        assert_eq!((c.seed, c.max_roughness_m, c.tolerance_m), (d.seed, d.max_roughness_m, d.tolerance_m));
+        assert_eq!(
+            (c.tau_m, c.samples, c.max_iter),
+            (d.tau_m, d.samples, d.max_iter)
+        );
+        assert_eq!(
+            (c.max_displacement_m, c.max_level),
+            (d.max_displacement_m, d.max_level)
+        );
+        assert_eq!(
+            (c.seed, c.max_roughness_m, c.tolerance_m),
+            (d.seed, d.max_roughness_m, d.tolerance_m)
+        );
     }
 
     #[test]

@@ -10,5 +10,6 @@ mod fuse_eval;
 mod ingest;
 mod pair_real;
 mod pair_recovery;
+mod readme;
 mod resume;
 mod ttp_collection;
