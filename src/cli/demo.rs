@@ -105,9 +105,9 @@ fn run_collection(data_dir: &Path, work: &Path) -> anyhow::Result<()> {
     let truth_path = data_dir.join("truth.json");
     let truth =
         Truth::load(&truth_path).with_context(|| format!("reading {}", truth_path.display()))?;
-    emit_line(&format!(
-        "\nagreement with the truth (relative corrections of every pair, at the tile centres):"
-    ))?;
+    emit_line(
+        "\nagreement with the truth (relative corrections of every pair, at the tile centres):",
+    )?;
     emit_line(&format!(
         "{:<8} {:>14} {:>14} {:>16}",
         "graph", "mean error m", "worst error m", "worst angle deg"
