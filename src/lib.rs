@@ -1,5 +1,7 @@
 //! dsmstream: out-of-core registration of large collections of overlapping
-//! Digital Surface Models (Xu & Qin, ISPRS Annals X-1-2024).
+//! Digital Surface Models (Xu & Qin, ISPRS Annals X-1-2024). The method and the
+//! file contracts are in docs/design.md (cited as DESIGN.md in the code); the
+//! module picture in docs/architecture.md.
 //!
 //! Data flow (one module per stage):
 //! ```text
@@ -12,6 +14,36 @@
 //!  poses ──► fuse (COG mosaic)      eval (rmse_tau report, plots)
 //! ```
 //! Memory is the cache budget plus a small constant: nothing loads a whole DSM.
+//!
+//! The modules:
+//! - [`geotiff`]: GeoTIFF in pure Rust, a streaming reader (strips or tiles)
+//!   and a tiled Cloud-Optimized writer; [`raster`] the georeferencing both
+//!   share (geotransform in GDAL order, CRS from geokeys).
+//! - [`store`]: the collection store, one Zarr v3 multiscale group per DSM with
+//!   its catalog entry; `ingest` converts GeoTIFFs into it once.
+//! - [`cache`]: decoded chunks shared by every worker under one byte budget;
+//!   [`grid`] reads pixel windows of one DSM level through it.
+//! - [`plan`]: which DSMs overlap, their overlap scores, and the order in which
+//!   pairs are registered so the cache stays warm.
+//! - [`icp`], [`nn`], [`fit`]: pairwise DSM-ICP, coarse to fine: the exact grid
+//!   nearest-neighbour search of the paper, and the rigid fits
+//!   (point-to-surface, point-to-plane, point-to-point) with standard errors.
+//! - [`pipeline`]: planner → N ICP workers → edge sink over bounded channels;
+//!   [`journal`] appends every finished pair to disk so `--resume` can skip it.
+//! - [`graph`]: the scene graph (edges, weights, components, spanning tree);
+//!   [`averaging`] solves one pose per DSM from it (rotations, then
+//!   translations, with outlier rounds).
+//! - [`align`]: the whole `align` run as one library call, ending in
+//!   [`poses`], the poses.json file and its rigid-transform helpers.
+//! - [`fuse`]: the registered mosaic (or each corrected DSM) written as COG,
+//!   one output tile at a time.
+//! - [`eval`]: rmse_tau and robust statistics over every overlapping pair and
+//!   against a reference DSM or LAS/LAZ cloud; [`plots`] draws its PNGs.
+//! - [`synth`]: DSM collections with a known answer (generated city tiles or
+//!   cuts of a real DSM), used by the tests, the demo and `dsmgen`.
+//! - [`atomic`]: files written under a temporary name and renamed when
+//!   complete; [`rng`]: seeded pseudo-random numbers; [`error`]: the
+//!   [`InputError`] the binary maps to exit code 2.
 
 pub mod align;
 pub mod atomic;

@@ -1,6 +1,7 @@
 //! The `dsmstream` binary: parses the command line once, sets up logging, runs
 //! one command and maps its outcome to the exit code (0 ok, 1 work failed,
-//! 2 bad usage or bad input).
+//! 2 bad usage or bad input). A reader that closes stdout early (`| head`)
+//! ends the command quietly with 0, as other Unix tools do.
 
 mod cli;
 
@@ -13,6 +14,7 @@ fn main() {
     cli::init_logging(args.verbose, args.quiet);
     match cli::run(args.command) {
         Ok(()) => {}
+        Err(err) if cli::common::is_broken_pipe(&err) => {}
         Err(err) => {
             let code = if err
                 .chain()

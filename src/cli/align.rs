@@ -10,9 +10,9 @@ use dsmstream::pipeline::memory::{pinned_bytes_per_thread, plan_memory};
 use dsmstream::pipeline::PipelineConfig;
 use dsmstream::poses::GraphKind;
 use dsmstream::InputError;
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
-use super::pair::{open_store, IcpArgs};
+use super::common::{emit_line, open_store, progress_bar, warn_line, ResourceArgs};
+use super::icp_args::IcpArgs;
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug)]
 pub enum GraphArg {
@@ -38,14 +38,8 @@ pub struct Args {
     /// Where to write poses.json (written to a temporary name, then renamed).
     #[arg(long)]
     pub out: PathBuf,
-    /// Memory budget of the chunks in MiB, shared by all workers: the cache plus
-    /// the chunks each thread's grids pin.
-    #[arg(long, default_value_t = 256)]
-    pub cache_mb: usize,
-    /// Threads of the whole registration (default: all cores, as many as the
-    /// cache budget allows); bounds the CPUs used.
-    #[arg(long)]
-    pub threads: Option<usize>,
+    #[command(flatten)]
+    pub resources: ResourceArgs,
     /// full (motion averaging) or mst (greedy spanning tree baseline).
     #[arg(long, value_enum, default_value = "full")]
     pub graph: GraphArg,
@@ -69,15 +63,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if !(0.0..=1.0).contains(&args.min_overlap) {
         return Err(InputError::new("--min-overlap must be within [0, 1]").into());
     }
-    if args.threads == Some(0) {
-        return Err(InputError::new("--threads must be at least 1").into());
-    }
     let store = open_store(&args.store)?;
     let memory = plan_memory(
-        args.cache_mb.max(1) << 20,
+        (args.resources.cache_mb as usize) << 20,
         pinned_bytes_per_thread(&store),
-        super::threads_or_all(args.threads),
-        args.threads.is_some(),
+        args.resources.threads(),
+        args.resources.threads.is_some(),
     )
     .map_err(InputError::new)?;
     let config = AlignConfig {
@@ -105,7 +96,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "memory planned"
     );
     let cache = ChunkCache::new(memory.cache_budget_bytes);
-    let bar = progress_bar();
+    let bar = progress_bar("pairs");
     let started = std::time::Instant::now();
     let outcome = align(&store, &cache, &config, &mut |done, total| {
         bar.set_length(total as u64);
@@ -127,41 +118,34 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     })?;
     cache.log_stats();
     outcome.poses.write(&args.out)?;
-    print_summary(&outcome, &args.out, started.elapsed().as_secs_f64());
+    print_summary(&outcome, &args.out, started.elapsed().as_secs_f64())?;
     Ok(())
 }
 
-fn progress_bar() -> ProgressBar {
-    let bar = ProgressBar::with_draw_target(Some(0), ProgressDrawTarget::stderr());
-    bar.set_style(
-        ProgressStyle::with_template("{bar:30} {pos}/{len} pairs {per_sec} eta {eta} {msg}")
-            .expect("valid template"),
-    );
-    if tracing::enabled!(tracing::Level::ERROR) && !tracing::enabled!(tracing::Level::WARN) {
-        bar.set_draw_target(ProgressDrawTarget::hidden());
-    }
-    bar
-}
-
 /// The warnings (stderr) and the summary (stdout) of a finished run.
-fn print_summary(outcome: &AlignOutcome, out: &std::path::Path, seconds: f64) {
+fn print_summary(
+    outcome: &AlignOutcome,
+    out: &std::path::Path,
+    seconds: f64,
+) -> std::io::Result<()> {
     for f in &outcome.failed_pairs {
-        eprintln!(
-            "warning: pair {}-{} ({}) gave no edge",
+        warn_line(&format!(
+            "pair {}-{} ({}) gave no edge",
             f.reference, f.moving, f.why
-        );
+        ));
     }
     if let Some(warning) = outcome.weights_warning() {
-        eprintln!("warning: {warning}");
+        warn_line(&warning);
     }
     if outcome.components.len() > 1 {
-        eprintln!(
-            "warning: the scene graph has {} disconnected components, each solved on its own:",
+        let mut text = format!(
+            "the scene graph has {} disconnected components, each solved on its own:",
             outcome.components.len()
         );
         for c in &outcome.components {
-            eprintln!("  {}", c.join(", "));
+            text.push_str(&format!("\n  {}", c.join(", ")));
         }
+        warn_line(&text);
     }
     let p = &outcome.poses;
     let c = outcome.counts;
@@ -183,14 +167,14 @@ fn print_summary(outcome: &AlignOutcome, out: &std::path::Path, seconds: f64) {
             "after averaging",
         ),
     };
-    println!(
+    emit_line(&format!(
         "aligned {} DSMs: {edges}, {} pairs without edge, graph {graph}, gauge {}, {seconds:.1} s",
         p.poses.len(),
         outcome.failed_pairs.len(),
         p.gauge.label(),
-    );
-    println!(
+    ))?;
+    emit_line(&format!(
         "mean pairwise ICP rmse {mean_rmse:.3} m; largest edge residual {solved} {max_res:.3} m"
-    );
-    println!("poses written to {}", out.display());
+    ))?;
+    emit_line(&format!("poses written to {}", out.display()))
 }

@@ -10,17 +10,22 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use clap::Parser;
 use dsmstream::cache::ChunkCache;
 use dsmstream::eval::{evaluate, EvalConfig};
+use dsmstream::fuse::FuseMethod;
 use dsmstream::fuse::PoseSet;
 use dsmstream::poses::{inverse_rigid, rigid, to_local, to_world, PosesFile};
-use dsmstream::store::Store;
+use dsmstream::store::{StorageSettings, Store};
 use dsmstream::synth::cut::{cut_collection, CutParams};
 use dsmstream::synth::output::{epsg_crs, write_truth_grid, Truth};
 use dsmstream::synth::tiles::Layout;
 use dsmstream::InputError;
 use nalgebra::{Matrix3, Matrix4, Vector3};
+
+use super::align::{GraphArg, WeightsArg};
+use super::common::{all_cores, emit_line, ResourceArgs};
+use super::icp_args::IcpArgs;
+use super::{align, eval, fuse, ingest};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -45,13 +50,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(data) = &args.data {
         return run_collection(data, &work);
     }
-    println!("=== 1. generated city tiles ({SYNTH_CHAIN})");
+    emit_line(&format!("=== 1. generated city tiles ({SYNTH_CHAIN})"))?;
     run_collection(Path::new(SYNTH_CHAIN), &work.join("synth"))?;
     let real = work.join("ttp2015");
     let tiles = real.join("tiles");
-    println!(
+    emit_line(&format!(
         "\n=== 2. real terrain: {TTP_SOURCE} cut into a 3 x 2 grid of 300 px tiles, shifted <= 3 m, rotated <= 0.02 deg"
-    );
+    ))?;
     let params = CutParams {
         layout: Layout::Grid,
         rows: 3,
@@ -64,7 +69,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     cut_collection(Path::new(TTP_SOURCE), &params, &tiles, 256)
         .map_err(|e| anyhow::Error::new(InputError::new(e.to_string())))?;
     run_collection(&tiles, &real)?;
-    println!("\nfiles in {}", work.display());
+    emit_line(&format!("\nfiles in {}", work.display()))?;
     Ok(())
 }
 
@@ -72,44 +77,47 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 fn run_collection(data_dir: &Path, work: &Path) -> anyhow::Result<()> {
     std::fs::create_dir_all(work).with_context(|| format!("creating {}", work.display()))?;
     let store = work.join("collection.zarr");
-    let data = data_dir.display().to_string();
-    let store_s = store.display().to_string();
-    super::run(
-        super::Cli::try_parse_from(["dsmstream", "ingest", &data, "--store", &store_s])?.command,
-    )?;
+    let storage = StorageSettings::default();
+    ingest::run(ingest::Args {
+        inputs: vec![data_dir.to_path_buf()],
+        store: store.clone(),
+        chunk: storage.chunk,
+        compression: storage.compression,
+        force: false,
+    })?;
     let mut rows = Vec::new();
-    for graph in ["full", "mst"] {
+    for (graph, kind) in [("full", GraphArg::Full), ("mst", GraphArg::Mst)] {
         let out = work.join(format!("poses_{graph}.json"));
-        let out_s = out.display().to_string();
-        println!("\n== align --graph {graph}");
-        super::run(
-            super::Cli::try_parse_from([
-                "dsmstream",
-                "align",
-                &store_s,
-                "--out",
-                &out_s,
-                "--graph",
-                graph,
-            ])?
-            .command,
-        )?;
+        emit_line(&format!("\n== align --graph {graph}"))?;
+        align::run(align::Args {
+            store: store.clone(),
+            out: out.clone(),
+            resources: ResourceArgs::default(),
+            graph: kind,
+            weights: WeightsArg::Information,
+            min_overlap: 0.1,
+            anchor: None,
+            resume: false,
+            icp: IcpArgs::default(),
+        })?;
         rows.push((graph, PosesFile::read(&out)?));
     }
     let truth_path = data_dir.join("truth.json");
     let truth =
         Truth::load(&truth_path).with_context(|| format!("reading {}", truth_path.display()))?;
-    println!(
-        "\nagreement with the truth (relative corrections of every pair, at the tile centres):"
-    );
-    println!(
+    emit_line(
+        "\nagreement with the truth (relative corrections of every pair, at the tile centres):",
+    )?;
+    emit_line(&format!(
         "{:<8} {:>14} {:>14} {:>16}",
         "graph", "mean error m", "worst error m", "worst angle deg"
-    );
+    ))?;
     for (graph, poses) in &rows {
         let e = truth.pairwise_error(poses);
         let (mean, worst, worst_deg) = (e.mean_m, e.worst_m, e.worst_deg);
-        println!("{graph:<8} {mean:>14.4} {worst:>14.4} {worst_deg:>16.5}");
+        emit_line(&format!(
+            "{graph:<8} {mean:>14.4} {worst:>14.4} {worst_deg:>16.5}"
+        ))?;
     }
     fuse_and_eval(data_dir, work, &store, &truth, &rows)
 }
@@ -154,50 +162,43 @@ fn fuse_and_eval(
         truth_gauge(poses, truth).write(&path)?;
         gauged.push((*graph, path));
     }
-    let s = |p: &Path| p.display().to_string();
-    let fused = work.join("fused_full.tif");
-    println!("\n== fuse --poses poses_full.json");
-    super::run(
-        super::Cli::try_parse_from([
-            "dsmstream",
-            "fuse",
-            &s(store_path),
-            "--poses",
-            &s(&work.join("poses_full.json")),
-            "--out",
-            &s(&fused),
-        ])?
-        .command,
-    )?;
-    println!(
+    emit_line("\n== fuse --poses poses_full.json")?;
+    fuse::run(fuse::Args {
+        store: store_path.to_path_buf(),
+        poses: Some(work.join("poses_full.json")),
+        out: Some(work.join("fused_full.tif")),
+        gsd: None,
+        method: FuseMethod::Median,
+        per_dsm: None,
+        resources: ResourceArgs::default(),
+    })?;
+    emit_line(&format!(
         "\n== eval --poses poses_full_truth_gauge.json --reference {} --plots plots",
         truth_tif.display()
-    );
-    super::run(
-        super::Cli::try_parse_from([
-            "dsmstream",
-            "eval",
-            &s(store_path),
-            "--poses",
-            &s(&gauged[0].1),
-            "--reference",
-            &s(&truth_tif),
-            "--plots",
-            &s(&work.join("plots")),
-        ])?
-        .command,
-    )?;
+    ))?;
+    let eval_defaults = EvalConfig::default();
+    eval::run(eval::Args {
+        store: store_path.to_path_buf(),
+        poses: Some(gauged[0].1.clone()),
+        tau: eval_defaults.tau_m,
+        reference: Some(truth_tif.clone()),
+        json: false,
+        plots: Some(work.join("plots")),
+        max_samples: eval_defaults.max_samples,
+        all_returns: eval_defaults.all_returns,
+        resources: ResourceArgs::default(),
+    })?;
     let cache = ChunkCache::new(64 << 20);
     let config = EvalConfig {
-        threads: super::threads_or_all(None),
-        ..Default::default()
+        threads: all_cores(),
+        ..eval_defaults
     };
-    println!(
+    emit_line(&format!(
         "\nside by side ({}; tau = {} m; fused = median of corrected DSMs, gauge fixed to the truth):",
         data_dir.display(),
         config.tau_m
-    );
-    println!(
+    ))?;
+    emit_line(&format!(
         "{:<8} {:>18} {:>14} {:>22} {:>16} {:>16}",
         "poses",
         "pairs rmse_tau m",
@@ -205,7 +206,7 @@ fn fuse_and_eval(
         "fused-truth rmse_tau m",
         "fused-truth NMAD",
         "fused-truth med"
-    );
+    ))?;
     let mut sets: Vec<(&str, Option<PoseSet>)> = vec![("none", None)];
     for (graph, path) in &gauged {
         sets.push((graph, Some(PoseSet::from_file(&store, path)?)));
@@ -228,10 +229,10 @@ fn fuse_and_eval(
         let pairs = report.mean_after.or(report.mean_before).unwrap_or_default();
         let r = report.reference.as_ref().expect("reference given");
         let f = r.after.unwrap_or(r.before);
-        println!(
+        emit_line(&format!(
             "{name:<8} {:>18.3} {:>14.3} {:>22.3} {:>16.3} {:>16.3}",
             pairs.rmse_tau_m, pairs.nmad_m, f.rmse_tau_m, f.nmad_m, f.median_m
-        );
+        ))?;
     }
     Ok(())
 }

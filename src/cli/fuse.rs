@@ -4,12 +4,9 @@
 
 use std::path::PathBuf;
 
-use dsmstream::cache::ChunkCache;
 use dsmstream::fuse::{fuse, fuse_per_dsm, FuseConfig, FuseError, FuseMethod, PoseSet, TILE_SIZE};
-use dsmstream::InputError;
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
-use super::pair::open_store;
+use super::common::{classify, emit_line, open_store, progress_bar, require_file, ResourceArgs};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -31,18 +28,13 @@ pub struct Args {
     /// Also write each corrected DSM alone as DIR/<id>.tif.
     #[arg(long)]
     pub per_dsm: Option<PathBuf>,
-    /// Chunk cache budget in MiB, shared by all workers.
-    #[arg(long, default_value_t = 256)]
-    pub cache_mb: usize,
-    /// Worker threads (default: all cores).
-    #[arg(long)]
-    pub threads: Option<usize>,
+    #[command(flatten)]
+    pub resources: ResourceArgs,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let threads = super::threads_or_all(args.threads);
-    if threads == 0 {
-        return Err(InputError::new("--threads must be at least 1").into());
+    if let Some(p) = &args.poses {
+        require_file(p, "--poses")?;
     }
     let store = open_store(&args.store)?;
     let poses = match &args.poses {
@@ -52,18 +44,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let config = FuseConfig {
         gsd_m: args.gsd,
         method: args.method,
-        threads,
+        threads: args.resources.threads(),
         tile_size: TILE_SIZE,
     };
-    let cache = ChunkCache::new(args.cache_mb.max(1) << 20);
-    let bar = ProgressBar::with_draw_target(Some(0), ProgressDrawTarget::stderr());
-    bar.set_style(
-        ProgressStyle::with_template("{bar:30} {pos}/{len} tiles {per_sec} eta {eta} {msg}")
-            .expect("valid template"),
-    );
-    if !tracing::enabled!(tracing::Level::WARN) {
-        bar.set_draw_target(ProgressDrawTarget::hidden());
-    }
+    let cache = args.resources.cache();
+    let bar = progress_bar("tiles");
     let progress = |done: u64, total: u64| {
         bar.set_length(total);
         bar.set_position(done);
@@ -72,7 +57,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         bar.set_message(out.display().to_string());
         let r = fuse(&store, &cache, &poses, &config, out, &progress).map_err(to_anyhow)?;
         bar.finish_and_clear();
-        println!(
+        emit_line(&format!(
             "fused {} DSMs (poses: {}) into {}: {} x {} px at {} m, {:.1}% valid, {:.1} s",
             r.dsms,
             poses.label(),
@@ -82,20 +67,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             r.gsd_m,
             100.0 * r.valid_pixels as f64 / (r.width * r.height) as f64,
             r.seconds
-        );
+        ))?;
     }
     if let Some(dir) = &args.per_dsm {
         let reports =
             fuse_per_dsm(&store, &cache, &poses, &config, dir, &progress).map_err(to_anyhow)?;
         bar.finish_and_clear();
         for r in &reports {
-            println!(
+            emit_line(&format!(
                 "wrote {}: {} x {} px at {} m",
                 r.path.display(),
                 r.width,
                 r.height,
                 r.gsd_m
-            );
+            ))?;
         }
     }
     cache.log_stats();
@@ -110,9 +95,5 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 }
 
 fn to_anyhow(e: FuseError) -> anyhow::Error {
-    if e.is_bad_input() {
-        anyhow::Error::new(InputError::new(e.to_string()))
-    } else {
-        anyhow::Error::new(e)
-    }
+    classify(e, FuseError::is_bad_input)
 }

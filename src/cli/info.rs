@@ -2,10 +2,12 @@
 //! CRS, valid fraction, heights, chunking, levels, and how many other DSMs
 //! each footprint overlaps.
 
+use std::fmt::Write as _;
 use std::path::PathBuf;
 
-use dsmstream::store::{DsmMeta, Store};
-use dsmstream::InputError;
+use dsmstream::store::DsmMeta;
+
+use super::common::{emit, emit_line, open_store};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -35,13 +37,7 @@ fn overlapping_pairs(dsms: &[DsmMeta]) -> Vec<(usize, usize)> {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let store = Store::open(&args.store).map_err(|e| {
-        if e.is_bad_input() {
-            anyhow::Error::new(InputError::new(e.to_string()))
-        } else {
-            anyhow::Error::new(e)
-        }
-    })?;
+    let store = open_store(&args.store)?;
     let dsms = store.dsms();
     let pairs = overlapping_pairs(dsms);
     let crs = store
@@ -55,7 +51,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "dsms": dsms,
             "overlapping_pairs": pairs.iter().map(|&(i, j)| [&dsms[i].id, &dsms[j].id]).collect::<Vec<_>>(),
         });
-        println!("{}", serde_json::to_string_pretty(&doc)?);
+        emit_line(&serde_json::to_string_pretty(&doc)?)?;
         return Ok(());
     }
     let mut per_dsm = vec![0usize; dsms.len()];
@@ -64,7 +60,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         per_dsm[j] += 1;
     }
     let id_w = dsms.iter().map(|d| d.id.len()).max().unwrap_or(2).max(2);
-    println!(
+    let mut t = String::new();
+    let _ = writeln!(
+        t,
         "{:<id_w$}  {:>13}  {:>7}  {:<12}  {:>7}  {:>21}  {:>5}  {:>6}  {:>8}",
         "id",
         "size (px)",
@@ -78,7 +76,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     );
     for (d, n) in dsms.iter().zip(&per_dsm) {
         let chunk = d.levels.first().map(|l| l.chunk).unwrap_or(0);
-        println!(
+        let _ = writeln!(
+            t,
             "{:<id_w$}  {:>13}  {:>7.3}  {:<12}  {:>7.1}  {:>21}  {:>5}  {:>6}  {:>8}",
             d.id,
             format!("{} x {}", d.width, d.height),
@@ -91,11 +90,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             n
         );
     }
-    println!(
+    let _ = writeln!(
+        t,
         "{} DSMs, CRS {crs}, {} overlapping footprint pairs",
         dsms.len(),
         pairs.len()
     );
+    emit(&t)?;
     Ok(())
 }
 

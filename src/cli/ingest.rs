@@ -7,8 +7,9 @@ use std::path::PathBuf;
 
 use dsmstream::store::ingest::{DsmAction, DsmOutcome, IngestProgress};
 use dsmstream::store::{ingest, Compression, IngestOptions, StorageSettings};
-use dsmstream::InputError;
 use tracing_indicatif::span_ext::IndicatifSpanExt;
+
+use super::common::{classify, emit_line, quiet, require_writable_dir};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -61,8 +62,14 @@ impl IngestProgress for BarProgress {
 
     fn dsm_finished(&self, outcome: &DsmOutcome) {
         self.span.borrow_mut().take();
+        if quiet() {
+            return;
+        }
         let line = summary_line(outcome);
-        tracing_indicatif::suspend_tracing_indicatif(|| println!("{line}"));
+        // a closed stdout surfaces again at the command's last line
+        tracing_indicatif::suspend_tracing_indicatif(|| {
+            let _ = emit_line(&line);
+        });
     }
 }
 
@@ -98,21 +105,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         },
         force: args.force,
     };
+    require_writable_dir(&args.store)?;
     let progress = BarProgress::default();
-    let report = ingest(&args.inputs, &args.store, &options, &progress).map_err(|e| {
-        if e.is_bad_input() {
-            anyhow::Error::new(InputError::new(e.to_string()))
-        } else {
-            anyhow::Error::new(e)
-        }
-    })?;
+    let report = ingest(&args.inputs, &args.store, &options, &progress)
+        .map_err(|e| classify(e, |e| e.is_bad_input()))?;
     let count = |a: DsmAction| report.outcomes.iter().filter(|o| o.action == a).count();
-    println!(
+    emit_line(&format!(
         "{}: {} ingested, {} replaced, {} skipped",
         report.store.display(),
         count(DsmAction::Ingested),
         count(DsmAction::Replaced),
         count(DsmAction::Skipped)
-    );
+    ))?;
     Ok(())
 }

@@ -1,10 +1,14 @@
 //! Command-line definitions: one file per command, each with its clap `Args`
-//! and a `run` that builds the library configs and prints the command's output.
+//! and a `run` that builds the library configs and prints the command's output;
+//! `common` (resource flags, store opening, progress bar, stdout) and
+//! `icp_args` (the ICP flags of `pair` and `align`) are shared by them.
 
 pub mod align;
+pub mod common;
 pub mod demo;
 pub mod eval;
 pub mod fuse;
+pub mod icp_args;
 pub mod info;
 pub mod ingest;
 pub mod pair;
@@ -21,7 +25,8 @@ pub struct Cli {
     /// More log output (-v info, -vv debug, -vvv trace); RUST_LOG overrides.
     #[arg(short, long, action = clap::ArgAction::Count, global = true)]
     pub verbose: u8,
-    /// Only errors.
+    /// Only errors on stderr: no warnings, progress bars or per-DSM lines (the
+    /// command's results on stdout stay).
     #[arg(short, long, global = true)]
     pub quiet: bool,
     #[command(subcommand)]
@@ -58,7 +63,8 @@ pub fn run(command: Command) -> anyhow::Result<()> {
     }
 }
 
-/// tracing to stderr through indicatif, so log lines and progress bars do not tear.
+/// tracing to stderr through indicatif, so log lines and progress bars do not
+/// tear; colour only when stderr is a terminal and NO_COLOR is unset or empty.
 pub fn init_logging(verbose: u8, quiet: bool) {
     use tracing_subscriber::prelude::*;
     let default = match (quiet, verbose) {
@@ -78,13 +84,17 @@ pub fn init_logging(verbose: u8, quiet: bool) {
         .with(
             tracing_subscriber::fmt::layer()
                 .with_writer(writer)
+                .with_ansi(use_colour())
                 .with_target(false),
         )
         .with(indicatif_layer)
         .init();
 }
 
-/// `--threads`, or every core the process may use.
-pub(crate) fn threads_or_all(threads: Option<usize>) -> usize {
-    threads.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()))
+/// ANSI colour on stderr: only for a terminal, and never with NO_COLOR set
+/// to a non-empty value (https://no-color.org).
+fn use_colour() -> bool {
+    use std::io::IsTerminal;
+    let no_color = std::env::var_os("NO_COLOR").is_some_and(|v| !v.is_empty());
+    !no_color && std::io::stderr().is_terminal()
 }

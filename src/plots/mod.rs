@@ -5,7 +5,8 @@
 //! - [`diff_map_png`]: maps of signed height differences (before / after) on a
 //!   diverging colour scale shared by the panels, with a colour bar in metres;
 //! - [`histogram_png`]: overlaid histograms of height differences (share of
-//!   samples per bin, so sets of different sizes compare).
+//!   samples per bin, so sets of different sizes compare);
+//! - [`write_eval_plots`]: the pictures of an `eval` report, from the three.
 
 pub mod axes;
 pub mod canvas;
@@ -14,10 +15,12 @@ pub mod font;
 mod graph;
 mod histogram;
 mod map;
+pub mod report;
 
 pub use graph::{scene_graph_png, GraphEdge, GraphNode};
 pub use histogram::{histogram_png, Series};
 pub use map::{diff_map_png, MapGrid};
+pub use report::write_eval_plots;
 
 /// A plot could not be written (names the file).
 #[derive(Debug, thiserror::Error)]

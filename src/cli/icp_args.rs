@@ -1,0 +1,144 @@
+//! The DSM-ICP flags shared by `pair` and `align`, flattened into both. Their
+//! defaults are [`IcpConfig::default`]'s, so the library and the command line
+//! cannot drift apart.
+
+use dsmstream::fit::Model;
+use dsmstream::icp::{IcpConfig, Metric};
+use dsmstream::InputError;
+
+fn defaults() -> IcpConfig {
+    IcpConfig::default()
+}
+
+/// DSM-ICP settings shared by `pair` and `align`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct IcpArgs {
+    /// rigid (6 DoF) or translation (3 DoF).
+    #[arg(long, value_enum, default_value_t = defaults().model)]
+    pub model: Model,
+    /// Residual: point-to-surface (default, sub-pixel), point-to-plane (NN point + grid normal), point-to-point (the paper's Kabsch).
+    #[arg(long, value_enum, default_value_t = defaults().metric)]
+    pub metric: Metric,
+    /// Outlier threshold on the nearest-neighbour distance, metres (paper: 10).
+    #[arg(long, default_value_t = defaults().tau_m)]
+    pub tau: f64,
+    /// Query points sampled from the moving DSM in the overlap (all valid
+    /// pixels when the overlap has fewer).
+    #[arg(long, default_value_t = defaults().samples)]
+    pub samples: usize,
+    /// Iterations per pyramid level.
+    #[arg(long, default_value_t = defaults().max_iter)]
+    pub max_iter: usize,
+    /// Largest motion accepted, metres; caps the search at coarse levels.
+    #[arg(long, default_value_t = defaults().max_displacement_m)]
+    pub max_displacement: f64,
+    /// Coarsest overview level used for coarse-to-fine (0 = full resolution only).
+    #[arg(long, default_value_t = defaults().max_level)]
+    pub max_level: usize,
+    /// Seed of the sampling.
+    #[arg(long, default_value_t = defaults().seed)]
+    pub seed: u64,
+    /// Point-to-surface: skip reference places whose 7 x 7 neighbourhood
+    /// deviates from a plane by more than this RMS (metres) and 3x the median
+    /// (walls, tree crowns).
+    #[arg(long, default_value_t = defaults().max_roughness_m)]
+    pub max_roughness: f64,
+}
+
+impl Default for IcpArgs {
+    /// The flags as if none were given.
+    fn default() -> Self {
+        let d = defaults();
+        IcpArgs {
+            model: d.model,
+            metric: d.metric,
+            tau: d.tau_m,
+            samples: d.samples,
+            max_iter: d.max_iter,
+            max_displacement: d.max_displacement_m,
+            max_level: d.max_level,
+            seed: d.seed,
+            max_roughness: d.max_roughness_m,
+        }
+    }
+}
+
+impl IcpArgs {
+    /// The library configuration, or bad input (exit 2) for a value that is
+    /// not positive.
+    // `!(x > 0.0)` on purpose: NaN must be refused too
+    #[allow(clippy::neg_cmp_op_on_partial_ord)]
+    pub fn to_config(&self) -> anyhow::Result<IcpConfig> {
+        if !(self.tau > 0.0)
+            || self.samples == 0
+            || self.max_iter == 0
+            || !(self.max_displacement > 0.0)
+            || !(self.max_roughness > 0.0)
+        {
+            return Err(InputError::new(
+                "--tau, --samples, --max-iter, --max-displacement and --max-roughness must be positive",
+            )
+            .into());
+        }
+        Ok(IcpConfig {
+            model: self.model,
+            metric: self.metric,
+            tau_m: self.tau,
+            samples: self.samples,
+            max_iter: self.max_iter,
+            max_displacement_m: self.max_displacement,
+            seed: self.seed,
+            max_level: self.max_level,
+            max_roughness_m: self.max_roughness,
+            ..defaults()
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser, Debug)]
+    struct T {
+        #[command(flatten)]
+        icp: IcpArgs,
+    }
+
+    #[test]
+    fn no_flags_give_the_library_defaults() {
+        let c = T::try_parse_from(["t"]).unwrap().icp.to_config().unwrap();
+        let d = IcpConfig::default();
+        assert_eq!((c.model, c.metric), (d.model, d.metric));
+        assert_eq!(
+            (c.tau_m, c.samples, c.max_iter),
+            (d.tau_m, d.samples, d.max_iter)
+        );
+        assert_eq!(
+            (c.max_displacement_m, c.max_level),
+            (d.max_displacement_m, d.max_level)
+        );
+        assert_eq!(
+            (c.seed, c.max_roughness_m, c.tolerance_m),
+            (d.seed, d.max_roughness_m, d.tolerance_m)
+        );
+    }
+
+    #[test]
+    fn default_is_no_flags() {
+        let parsed = T::try_parse_from(["t"]).unwrap().icp;
+        assert_eq!(format!("{parsed:?}"), format!("{:?}", IcpArgs::default()));
+    }
+
+    #[test]
+    fn a_non_positive_value_is_bad_input() {
+        for flag in ["--tau", "--max-displacement", "--max-roughness"] {
+            let t = T::try_parse_from(["t", flag, "0"]).unwrap();
+            let err = t.icp.to_config().unwrap_err();
+            assert!(err.downcast_ref::<InputError>().is_some(), "{flag}");
+        }
+        let t = T::try_parse_from(["t", "--tau", "NaN"]).unwrap();
+        assert!(t.icp.to_config().is_err());
+    }
+}

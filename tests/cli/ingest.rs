@@ -1,0 +1,201 @@
+//! `dsmstream ingest` and `dsmstream info` run as the built binary on the real
+//! fixtures: TTP 2015 (three 506 x 760 px rasters, EPSG:26917, NaN no-data)
+//! and demcompare's SRTM tile in EPSG:4326 (must be refused, exit code 2).
+
+use std::path::{Path, PathBuf};
+use std::process::Output;
+
+use crate::util::{assert_ok, bin, fixtures, text};
+
+fn fixture(rel: &str) -> PathBuf {
+    fixtures().join("real").join(rel)
+}
+
+fn dsmstream(args: &[&str]) -> Output {
+    bin().args(args).output().expect("run dsmstream")
+}
+
+fn ingest(inputs: &[&Path], store: &Path, extra: &[&str]) -> Output {
+    let mut args: Vec<String> = vec!["ingest".into()];
+    args.extend(inputs.iter().map(|p| p.display().to_string()));
+    args.push("--store".into());
+    args.push(store.display().to_string());
+    args.extend(extra.iter().map(|s| s.to_string()));
+    let refs: Vec<&str> = args.iter().map(String::as_str).collect();
+    dsmstream(&refs)
+}
+
+/// Every file under `dir` with its bytes.
+fn snapshot(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(dir).unwrap() {
+        let p = e.unwrap().path();
+        if p.is_dir() {
+            out.extend(snapshot(&p));
+        } else {
+            out.push((p.clone(), std::fs::read(&p).unwrap()));
+        }
+    }
+    out.sort();
+    out
+}
+
+#[test]
+fn ingest_directory_then_info_lists_all_three() {
+    let tmp = tempfile::tempdir().unwrap();
+    let store = tmp.path().join("ttp.zarr");
+    let out = ingest(&[&fixture("ttp2015")], &store, &["--chunk", "128"]);
+    assert_ok(&out);
+    let stdout = text(&out.stdout);
+    for id in ["ttp_dsm_source", "ttp_dtm_source", "ttp_ndsm_source"] {
+        assert!(
+            stdout.contains(&format!("ingested {id}: 506 x 760 px")),
+            "{stdout}"
+        );
+    }
+    assert!(
+        stdout.contains("3 ingested, 0 replaced, 0 skipped"),
+        "{stdout}"
+    );
+
+    let info = dsmstream(&["info", store.to_str().unwrap()]);
+    assert_ok(&info);
+    let table = text(&info.stdout);
+    assert!(
+        table.contains("3 DSMs, CRS EPSG:26917, 3 overlapping footprint pairs"),
+        "{table}"
+    );
+    assert!(table.contains("506 x 760"), "{table}");
+
+    let json = dsmstream(&["info", store.to_str().unwrap(), "--json"]);
+    assert_ok(&json);
+    let doc: serde_json::Value = serde_json::from_slice(&json.stdout).unwrap();
+    let dsms = doc["dsms"].as_array().unwrap();
+    assert_eq!(dsms.len(), 3);
+    for d in dsms {
+        assert_eq!(
+            d["levels"].as_array().unwrap().len(),
+            5,
+            "760 -> 380 -> 190 -> 95 -> 48 px (overviews down to 64 px)"
+        );
+        assert_eq!(d["geotransform"][1], 1.0);
+        let valid = d["valid_count"].as_u64().unwrap();
+        assert!(
+            valid > 0 && valid < 506 * 760,
+            "TTP is half water (NaN): {valid}"
+        );
+        assert_eq!(d["source_dtype"], "Float32");
+    }
+}
+
+#[test]
+fn rerun_skips_force_replaces_touched_source_replaces() {
+    let tmp = tempfile::tempdir().unwrap();
+    let src = tmp.path().join("ttp_dsm_source.tif");
+    std::fs::copy(fixture("ttp2015/ttp_dsm_source.tif"), &src).unwrap();
+    let store = tmp.path().join("c.zarr");
+    assert_ok(&ingest(&[&src], &store, &[]));
+    let again = ingest(&[&src], &store, &[]);
+    assert_ok(&again);
+    assert!(
+        text(&again.stdout).contains("skipped  ttp_dsm_source"),
+        "{}",
+        text(&again.stdout)
+    );
+    assert!(text(&again.stdout).contains("0 ingested, 0 replaced, 1 skipped"));
+
+    let forced = ingest(&[&src], &store, &["--force"]);
+    assert_ok(&forced);
+    assert!(text(&forced.stdout).contains("replaced ttp_dsm_source"));
+
+    // A newer modification time counts as a changed source.
+    let f = std::fs::OpenOptions::new().write(true).open(&src).unwrap();
+    f.set_modified(std::time::SystemTime::now() + std::time::Duration::from_secs(5))
+        .unwrap();
+    drop(f);
+    let touched = ingest(&[&src], &store, &[]);
+    assert_ok(&touched);
+    assert!(text(&touched.stdout).contains("replaced ttp_dsm_source"));
+    let names: Vec<String> = std::fs::read_dir(&store)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(
+        names
+            .iter()
+            .all(|n| !n.contains(".tmp-") && !n.contains(".old-")),
+        "{names:?}"
+    );
+}
+
+#[test]
+fn geographic_srtm_is_refused_with_exit_2() {
+    let tmp = tempfile::tempdir().unwrap();
+    let store = tmp.path().join("c.zarr");
+    let out = ingest(&[&fixture("demcompare_srtm/srtm_ref.tif")], &store, &[]);
+    assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
+    let err = text(&out.stderr);
+    assert!(err.contains("srtm_ref.tif"), "{err}");
+    assert!(
+        err.contains("geographic CRS EPSG:4326 (degrees) is not a metric frame"),
+        "{err}"
+    );
+    assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
+    assert!(!store.exists(), "nothing written for a refused input");
+}
+
+#[test]
+fn failed_ingest_leaves_the_store_untouched() {
+    let tmp = tempfile::tempdir().unwrap();
+    let store = tmp.path().join("c.zarr");
+    assert_ok(&ingest(
+        &[&fixture("ttp2015/ttp_dsm_source.tif")],
+        &store,
+        &[],
+    ));
+    let before = snapshot(&store);
+    // A valid new file first, then a geographic one: the run is refused as a whole.
+    let out = ingest(
+        &[
+            &fixture("ttp2015/ttp_dtm_source.tif"),
+            &fixture("demcompare_srtm/srtm_ref.tif"),
+        ],
+        &store,
+        &[],
+    );
+    assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
+    assert_eq!(snapshot(&store), before);
+    // A projected CRS that differs from the collection's.
+    let out = ingest(&[&fixture("demcompare_srtm/srtm_ref_utm.tif")], &store, &[]);
+    assert_eq!(out.status.code(), Some(2));
+    let err = text(&out.stderr);
+    assert!(
+        err.contains("srtm_ref_utm.tif")
+            && err.contains("CRS EPSG:32637 differs from the collection's CRS EPSG:26917"),
+        "{err}"
+    );
+    assert_eq!(snapshot(&store), before);
+}
+
+#[test]
+fn unwritable_store_path_is_a_clear_error() {
+    let tmp = tempfile::tempdir().unwrap();
+    let file = tmp.path().join("plain_file");
+    std::fs::write(&file, b"not a directory").unwrap();
+    let store = file.join("c.zarr");
+    let out = ingest(&[&fixture("ttp2015/ttp_dsm_source.tif")], &store, &[]);
+    assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
+    let err = text(&out.stderr);
+    assert!(
+        err.contains("plain_file/c.zarr") && err.contains("cannot use as a store"),
+        "{err}"
+    );
+}
+
+#[test]
+fn info_on_a_non_store_is_exit_2() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = dsmstream(&["info", tmp.path().to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(text(&out.stderr).contains("not a dsmstream store"));
+}

@@ -1,0 +1,71 @@
+//! Helpers shared by every integration test module: the built binaries, the
+//! repository's fixtures, and a checked `ingest`.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+/// The built `dsmstream` binary, ready for arguments.
+pub fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_dsmstream"))
+}
+
+/// The built `dsmgen` binary, ready for arguments.
+pub fn dsmgen() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_dsmgen"))
+}
+
+/// The repository's `fixtures/` folder.
+pub fn fixtures() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures")
+}
+
+/// Process output bytes as text (lossy).
+pub fn text(bytes: &[u8]) -> String {
+    String::from_utf8_lossy(bytes).into_owned()
+}
+
+/// `out` itself, after asserting the process succeeded.
+pub fn ok(out: Output) -> Output {
+    assert_ok(&out);
+    out
+}
+
+/// Asserts the process succeeded (exit code, stdout and stderr in the
+/// failure message).
+pub fn assert_ok(out: &Output) {
+    assert!(
+        out.status.success(),
+        "exit {:?}\nstdout: {}\nstderr: {}",
+        out.status.code(),
+        text(&out.stdout),
+        text(&out.stderr)
+    );
+}
+
+/// `dsmstream ingest <inputs> --store <store> -q`, asserted to succeed.
+pub fn ingest(inputs: &[PathBuf], store: &Path) {
+    ok(bin()
+        .arg("ingest")
+        .args(inputs)
+        .arg("--store")
+        .arg(store)
+        .arg("-q")
+        .output()
+        .unwrap());
+}
+
+/// `dsmgen tiles <args> --out <out>`: a generated tile set with its truth.json.
+pub fn dsmgen_tiles(args: &[&str], out: &Path) {
+    let gen = dsmgen()
+        .arg("tiles")
+        .args(args)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .unwrap();
+    assert!(
+        gen.status.success(),
+        "dsmgen tiles {args:?}: {}",
+        text(&gen.stderr)
+    );
+}

@@ -1,0 +1,424 @@
+#!/usr/bin/env python3
+"""Generate the GeoTIFF reader fixtures in fixtures/geotiff/ and their expected answers.
+
+GDAL (through rasterio's wheel, which bundles it) writes small 67 x 45 rasters for
+every sample type x layout x compression the reader supports, plus predictor,
+BigTIFF, pixel-is-point, ModelTransformation, no-data, CRS and multi-band
+variants, and files the reader must refuse. A few variants GDAL cannot write
+(old-style Deflate code 32946, a north-up ModelTransformation, zero width, tile
+offsets past the end of the file) are made by patching one tag of a GDAL file.
+
+expected.json records what GDAL reports when it reads each file back:
+geotransform, EPSG, no-data and the pixels (raw little-endian f32 files under
+pixels/, NaN where GDAL's no-data mask says no-data; identical rasters share one
+file). For the real rasters in fixtures/real/ it records the same metadata plus
+the valid-pixel count and sum and a deterministic sample of pixels.
+
+Usage: pip install rasterio numpy; python3 tools/scripts/make_test_tiffs.py
+Re-running rewrites fixtures/geotiff/ from scratch (deterministic data).
+"""
+
+import glob
+import hashlib
+import json
+import os
+import re
+import shutil
+import struct
+import warnings
+
+import numpy as np
+import rasterio
+from rasterio.transform import Affine, from_origin
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+OUT = os.path.join(ROOT, "fixtures", "geotiff")
+PIX = os.path.join(OUT, "pixels")
+W, H = 67, 45
+UTM = "EPSG:32617"
+GT_UTM = from_origin(630000.5, 4830000.25, 0.5, 0.5)
+
+warnings.filterwarnings("ignore", category=rasterio.errors.NotGeoreferencedWarning)
+
+# ---------------------------------------------------------------- data
+
+
+def surface():
+    """A smooth height field (metres) with a no-data disk and scattered holes."""
+    rng = np.random.default_rng(42)
+    y, x = np.mgrid[0:H, 0:W].astype("float64")
+    z = 100.0 + 20.0 * np.sin(x / 9.0) * np.cos(y / 7.0) + 0.05 * x - 0.03 * y
+    z += rng.normal(0.0, 0.3, size=z.shape)
+    z = np.round(z * 64.0) / 64.0  # quantised like many DSMs: keeps the fixtures small
+    holes = (x - 50) ** 2 + (y - 12) ** 2 < 36
+    holes |= rng.random(z.shape) < 0.02
+    return z, holes
+
+
+DTYPES = {
+    # name: (numpy dtype, no-data value, scale, offset)
+    "f32": ("float32", float("nan"), 1.0, 0.0),
+    "f64": ("float64", -9999.0, 1.0, 0.0),
+    "i16": ("int16", -32768.0, 10.0, -500.0),
+    "u16": ("uint16", 0.0, 100.0, 0.0),
+    "i32": ("int32", -9999.0, 1000.0, -50000.0),
+    "u8": ("uint8", 255.0, 1.0, 0.0),
+}
+
+
+def raster(kind, nodata=None):
+    dtype, default_nodata, scale, offset = DTYPES[kind]
+    nodata = default_nodata if nodata is None else nodata
+    z, holes = surface()
+    v = z * scale + offset
+    if not dtype.startswith("float"):
+        v = np.round(v)
+    v = v.astype(dtype)
+    v[holes] = nodata
+    return v, nodata
+
+
+# ---------------------------------------------------------------- writing
+
+
+def write(name, data, nodata, compress=None, tiled=False, block=16, strip_rows=7,
+          predictor=None, bigtiff=False, crs=UTM, transform=GT_UTM, point=False,
+          count=1, interleave="pixel", **extra):
+    path = os.path.join(OUT, name)
+    profile = dict(driver="GTiff", width=data.shape[-1], height=data.shape[-2],
+                   count=count, dtype=data.dtype.name, interleave=interleave)
+    if crs is not None:
+        profile["crs"] = crs
+    if transform is not None:
+        profile["transform"] = transform
+    if nodata is not None:
+        profile["nodata"] = nodata
+    if compress:
+        profile["compress"] = compress
+    if tiled:
+        profile.update(tiled=True, blockxsize=block, blockysize=block)
+    else:
+        profile.update(blockysize=strip_rows)
+    if predictor:
+        profile["predictor"] = predictor
+    if bigtiff:
+        profile["BIGTIFF"] = "YES"
+    profile.update(extra)
+    with rasterio.open(path, "w", **profile) as ds:
+        if point:
+            ds.update_tags(AREA_OR_POINT="Point")
+        if count == 1:
+            ds.write(data, 1)
+        else:
+            ds.write(data)
+    return name
+
+
+# ------------------------------------------------------- tag patching
+
+
+TYPE_SIZES = {1: 1, 2: 1, 3: 2, 4: 4, 5: 8, 6: 1, 7: 1, 8: 2, 9: 4, 10: 8, 11: 4, 12: 8,
+              16: 8, 17: 8, 18: 8}
+TYPE_FMT = {1: "B", 3: "H", 4: "I", 8: "h", 9: "i", 12: "d", 16: "Q"}
+
+
+def ifd_entries(buf):
+    """(tag, type, count, value_offset_in_file) for each entry of the first IFD."""
+    e = "<" if buf[:2] == b"II" else ">"
+    big = struct.unpack(e + "H", buf[2:4])[0] == 43
+    off = struct.unpack(e + "Q", buf[8:16])[0] if big else struct.unpack(e + "I", buf[4:8])[0]
+    n = struct.unpack(e + ("Q" if big else "H"), buf[off:off + (8 if big else 2)])[0]
+    p = off + (8 if big else 2)
+    out = []
+    for _ in range(n):
+        if big:
+            tag, typ, cnt = struct.unpack(e + "HHQ", buf[p:p + 12])
+            vo, inline = p + 12, 8
+        else:
+            tag, typ, cnt = struct.unpack(e + "HHI", buf[p:p + 8])
+            vo, inline = p + 8, 4
+        if TYPE_SIZES[typ] * cnt > inline:
+            vo = struct.unpack(e + ("Q" if big else "I"), buf[vo:vo + inline])[0]
+        out.append((tag, typ, cnt, vo))
+        p += 20 if big else 12
+    return e, out
+
+
+def patch_tag(src, dst, tag, values):
+    """Copy src to dst, overwriting the value(s) of one tag in place (same type/count)."""
+    buf = bytearray(open(os.path.join(OUT, src), "rb").read())
+    e, entries = ifd_entries(buf)
+    for t, typ, cnt, vo in entries:
+        if t == tag:
+            assert len(values) <= cnt, (tag, cnt, values)
+            fmt = TYPE_FMT[typ]
+            for i, v in enumerate(values):
+                struct.pack_into(e + fmt, buf, vo + i * TYPE_SIZES[typ], v)
+            break
+    else:
+        raise KeyError(f"tag {tag} not in {src}")
+    open(os.path.join(OUT, dst), "wb").write(bytes(buf))
+    return dst
+
+
+# ------------------------------------------------------- expectations
+
+
+def compression_label(ds):
+    c = ds.profile.get("compress")
+    return "none" if c is None else str(c).lower()
+
+
+def json_nodata(v):
+    if v is None:
+        return None
+    return "nan" if np.isnan(v) else float(v)
+
+
+def horizontal_epsg(crs):
+    """EPSG code of the CRS, or of the horizontal part of a compound CRS."""
+    if crs is None:
+        return None
+    code = crs.to_epsg()
+    if code is not None:
+        return code
+    wkt = crs.to_wkt()
+    if wkt.startswith("COMPD_CS"):
+        m = re.search(r'AUTHORITY\["EPSG","(\d+)"\]\],VERT_CS', wkt)
+        if m:
+            return int(m.group(1))
+    return None
+
+
+def gdal_pixels(ds):
+    """Band 1 as GDAL reads it, f32, NaN where GDAL's mask says no-data."""
+    band = ds.read(1, masked=True)
+    vals = np.ma.filled(band.astype("float64"), np.nan).astype("<f4")
+    return vals
+
+
+def describe(ds, name):
+    return {
+        "file": name,
+        "width": ds.width,
+        "height": ds.height,
+        "band_count": ds.count,
+        "dtype": ds.dtypes[0],
+        "compression": compression_label(ds),
+        "tiled": bool(ds.profile.get("tiled", False)),
+        "block": [ds.block_shapes[0][1], ds.block_shapes[0][0]],
+        "geotransform": list(ds.transform.to_gdal()),
+        "epsg": horizontal_epsg(ds.crs),
+        "is_geographic": bool(ds.crs.is_geographic) if ds.crs else False,
+        "nodata": json_nodata(ds.nodata),
+    }
+
+
+def expect_good(name, extra=None):
+    with rasterio.open(os.path.join(OUT, name)) as ds:
+        rec = describe(ds, name)
+        vals = gdal_pixels(ds)
+    raw = vals.tobytes()
+    digest = hashlib.sha1(raw).hexdigest()[:10]
+    bin_name = f"pixels/{rec['dtype']}_{digest}.bin"
+    with open(os.path.join(OUT, bin_name), "wb") as f:
+        f.write(raw)
+    rec["pixels"] = bin_name
+    rec.update(extra or {})
+    return rec
+
+
+def expect_real(path):
+    rel = os.path.relpath(path, OUT)
+    with rasterio.open(path) as ds:
+        rec = describe(ds, rel)
+        vals = gdal_pixels(ds)
+    valid = ~np.isnan(vals)
+    rng = np.random.default_rng(7)
+    rows = rng.integers(0, vals.shape[0], 100)
+    cols = rng.integers(0, vals.shape[1], 100)
+    rec["valid_count"] = int(valid.sum())
+    rec["valid_sum"] = float(vals[valid].astype("float64").sum())
+    rec["samples"] = [[int(r), int(c), None if np.isnan(vals[r, c]) else float(vals[r, c])]
+                      for r, c in zip(rows, cols)]
+    return rec
+
+
+README = """# GeoTIFF reader fixtures (generated: do not edit)
+
+Made by `tools/scripts/make_test_tiffs.py` with GDAL {gdal} (rasterio {rio} wheel); re-running
+it rewrites this folder byte for byte. `expected.json` holds what GDAL reports for
+each file: `good` (readable: metadata and `pixels/*.bin`, width*height little-endian
+f32 with NaN where GDAL's no-data mask is set), `bad` (files the reader must refuse,
+with the kind of error), `real` (the rasters in ../real/: metadata, valid-pixel count
+and sum, and 100 sampled pixels). Data: a synthetic 67 x 45 height field with
+no-data holes, stored in every sample type, layout and compression the reader
+supports; `bad_*` and a few variants are patched GDAL files (see the script).
+The Rust tests are in src/geotiff/reader/tests.rs.
+"""
+
+
+def compact_json(doc):
+    """Pretty at the top level, one line per file record (small, diffable)."""
+    parts = []
+    for key, val in doc.items():
+        if isinstance(val, list):
+            rows = ",\n  ".join(json.dumps(r, allow_nan=False) for r in val)
+            parts.append(f' "{key}": [\n  {rows}\n ]')
+        else:
+            parts.append(f" {json.dumps(key)}: {json.dumps(val)}")
+    return "{\n" + ",\n".join(parts) + "\n}\n"
+
+
+# ---------------------------------------------------------------- main
+
+
+def main():
+    if os.path.isdir(OUT):
+        shutil.rmtree(OUT)
+    os.makedirs(PIX)
+    good, bad = [], []
+
+    # Every sample type x layout x compression.
+    for kind in DTYPES:
+        data, nodata = raster(kind)
+        for layout in ("strip", "tile"):
+            for comp in ("none", "lzw", "deflate", "zstd", "packbits"):
+                name = write(f"{kind}_{layout}_{comp}.tif", data, nodata,
+                             compress=None if comp == "none" else comp,
+                             tiled=layout == "tile")
+                good.append(expect_good(name, {"predictor": 1}))
+
+    # Predictors.
+    for kind, layout, comp, pred in [
+        ("f32", "tile", "deflate", 3), ("f32", "strip", "lzw", 3),
+        ("f64", "tile", "zstd", 3), ("f64", "strip", "deflate", 3),
+        ("f32", "tile", "deflate", 2), ("f64", "strip", "zstd", 2),
+        ("i16", "tile", "lzw", 2), ("u16", "strip", "deflate", 2),
+        ("i32", "tile", "zstd", 2), ("u8", "strip", "lzw", 2),
+    ]:
+        data, nodata = raster(kind)
+        name = write(f"{kind}_{layout}_{comp}_p{pred}.tif", data, nodata, compress=comp,
+                     tiled=layout == "tile", predictor=pred)
+        good.append(expect_good(name, {"predictor": pred}))
+
+    # Old-style Deflate code (32946): same bytes, compression tag patched.
+    good.append(expect_good(patch_tag("f32_tile_deflate.tif", "f32_tile_deflate32946.tif",
+                                      259, [32946]), {"predictor": 1}))
+    # A tile size of 32 and one single strip holding the whole image.
+    data, nodata = raster("f32")
+    good.append(expect_good(write("f32_tile32_deflate.tif", data, nodata, compress="deflate",
+                                  tiled=True, block=32), {"predictor": 1}))
+    good.append(expect_good(write("f32_onestrip_deflate.tif", data, nodata, compress="deflate",
+                                  strip_rows=H), {"predictor": 1}))
+
+    # Big-endian files (MM byte order), with predictors.
+    for kind, layout, comp, pred in [("f32", "strip", "deflate", 3), ("i16", "tile", "lzw", 2),
+                                     ("f64", "tile", "zstd", 1), ("u16", "strip", "packbits", 1)]:
+        d, n = raster(kind)
+        name = write(f"{kind}_{layout}_{comp}_p{pred}_bigendian.tif", d, n, compress=comp,
+                     tiled=layout == "tile", predictor=pred if pred > 1 else None,
+                     ENDIANNESS="BIG")
+        good.append(expect_good(name, {"predictor": pred}))
+
+    # Sparse tiles (GDAL SPARSE_OK): all-no-data tiles are not stored (byte count 0).
+    sparse = data.copy()
+    sparse[:16, :] = np.nan
+    sparse[16:32, 32:48] = np.nan
+    good.append(expect_good(write("f32_tile_sparse.tif", sparse, nodata, compress="deflate",
+                                  tiled=True, SPARSE_OK=True)))
+    sparse16 = raster("i16")[0].copy()
+    sparse16[:, :32] = 0
+    good.append(expect_good(write("i16_tile_sparse_no_nodata.tif", sparse16, None,
+                                  compress="lzw", tiled=True, SPARSE_OK=True)))
+
+    # BigTIFF.
+    good.append(expect_good(write("f32_tile_deflate_bigtiff.tif", data, nodata,
+                                  compress="deflate", tiled=True, bigtiff=True)))
+    d16, n16 = raster("i16")
+    good.append(expect_good(write("i16_strip_lzw_bigtiff.tif", d16, n16, compress="lzw",
+                                  bigtiff=True)))
+
+    # No-data variants (f32): -9999, -FLT_MAX, none at all (NaN pixels stay NaN).
+    for tag, nd in (("9999", -9999.0), ("fltmin", -3.4028234663852886e38)):
+        d, n = raster("f32", nd)
+        good.append(expect_good(write(f"f32_nodata_{tag}.tif", d, n, compress="deflate",
+                                      tiled=True)))
+    good.append(expect_good(write("f32_no_nodata.tif", data, None, compress="lzw")))
+
+    # Geographic (EPSG:4326), pixel-is-point (geographic and projected), custom CRS.
+    gt_geo = from_origin(-79.5, 43.75, 0.0001, 0.0001)
+    good.append(expect_good(write("f32_4326_area.tif", data, nodata, crs="EPSG:4326",
+                                  transform=gt_geo)))
+    good.append(expect_good(write("f32_4326_point.tif", data, nodata, crs="EPSG:4326",
+                                  transform=gt_geo, point=True), {"pixel_is_point": True}))
+    good.append(expect_good(write("f32_utm_point.tif", data, nodata, compress="deflate",
+                                  tiled=True, point=True), {"pixel_is_point": True}))
+    custom = ("+proj=tmerc +lat_0=0 +lon_0=10.5 +k=0.9999 +x_0=250000 +y_0=0 "
+              "+ellps=GRS80 +units=m +no_defs")
+    good.append(expect_good(write("f32_custom_crs.tif", data, nodata, crs=custom,
+                                  transform=from_origin(250000.0, 5200000.0, 2.0, 2.0)),
+                            {"custom_crs": True}))
+
+    # ModelTransformation only: GDAL writes one for a rotated transform; patch it north-up.
+    rot = Affine(0.5, 0.1, 630000.0, 0.1, -0.5, 4830000.0)
+    write("bad_rotated.tif", data, nodata, transform=rot, compress="deflate")
+    bad.append({"file": "bad_rotated.tif", "error": "rotated"})
+    mt = [0.5, 0.0, 0.0, 630010.0, 0.0, -0.5, 0.0, 4830020.0, 0, 0, 0, 0, 0, 0, 0, 1]
+    good.append(expect_good(patch_tag("bad_rotated.tif", "f32_model_transformation.tif",
+                                      34264, mt)))
+
+    # Multi-band: band 1 is read, pixel- and band-interleaved.
+    two = np.stack([data, data * 2.0])
+    for il in ("pixel", "band"):
+        good.append(expect_good(write(f"f32_2band_{il}.tif", two, nodata, count=2,
+                                      interleave=il, compress="deflate", tiled=True)))
+
+    # Files the reader must refuse.
+    with open(os.path.join(OUT, "bad_not_tiff.tif"), "wb") as f:
+        f.write(b"this is not a TIFF file, just text pretending to be one\n")
+    bad.append({"file": "bad_not_tiff.tif", "error": "not_tiff"})
+    write("bad_south_up.tif", data, nodata, transform=Affine(0.5, 0, 630000, 0, 0.5, 4830000),
+          compress="deflate")
+    bad.append({"file": "bad_south_up.tif", "error": "rotated"})
+    write("bad_no_georef.tif", data, nodata, crs=None, transform=None, compress="deflate")
+    bad.append({"file": "bad_no_georef.tif", "error": "no_georef"})
+    write("bad_lerc.tif", data, nodata, compress="lerc", tiled=True)
+    bad.append({"file": "bad_lerc.tif", "error": "compression"})
+    d8, _ = raster("u8")
+    write("bad_jpeg.tif", d8, None, compress="jpeg", tiled=True)
+    bad.append({"file": "bad_jpeg.tif", "error": "compression"})
+    write("bad_complex.tif", data[:8, :8].astype("complex64"), None)
+    bad.append({"file": "bad_complex.tif", "error": "sample_format"})
+    write("bad_1bit.tif", (d8 > 100).astype("uint8"), None, nbits=1)
+    bad.append({"file": "bad_1bit.tif", "error": "sample_format"})
+    patch_tag("f32_strip_none.tif", "bad_zero_width.tif", 256, [0])
+    bad.append({"file": "bad_zero_width.tif", "error": "zero_size"})
+    patch_tag("f32_tile_deflate.tif", "bad_offset_past_end.tif", 324, [3_000_000_000])
+    bad.append({"file": "bad_offset_past_end.tif", "error": "truncated"})
+    src = open(os.path.join(OUT, "f32_tile_none.tif"), "rb").read()
+    open(os.path.join(OUT, "bad_truncated.tif"), "wb").write(src[: len(src) // 2])
+    bad.append({"file": "bad_truncated.tif", "error": "truncated"})
+
+    real = [expect_real(p) for p in sorted(glob.glob(os.path.join(ROOT, "fixtures/real/*/*.tif")))]
+
+    expected = {
+        "generator": "tools/scripts/make_test_tiffs.py",
+        "gdal_version": rasterio.__gdal_version__,
+        "rasterio_version": rasterio.__version__,
+        "note": "pixels/*.bin: width*height little-endian f32, row-major, NaN = no-data",
+        "good": good,
+        "bad": bad,
+        "real": real,
+    }
+    with open(os.path.join(OUT, "expected.json"), "w") as f:
+        f.write(compact_json(expected))
+    with open(os.path.join(OUT, "README.md"), "w") as f:
+        f.write(README.format(gdal=rasterio.__gdal_version__, rio=rasterio.__version__))
+    total = sum(os.path.getsize(p) for p in glob.glob(os.path.join(OUT, "**"), recursive=True)
+                if os.path.isfile(p))
+    print(f"{len(good)} good, {len(bad)} bad, {len(real)} real; {total / 1e6:.2f} MB in {OUT}")
+
+
+if __name__ == "__main__":
+    main()
