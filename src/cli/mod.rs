@@ -2,6 +2,7 @@
 //! and a `run` that builds the library configs and prints the command's output.
 
 pub mod align;
+pub mod check;
 pub mod demo;
 pub mod eval;
 pub mod fuse;
@@ -44,6 +45,8 @@ pub enum Command {
     Eval(eval::Args),
     /// Run ingest, align, fuse and eval on the bundled fixtures.
     Demo(demo::Args),
+    /// Verify every DSM of a store (chunks, metadata, statistics); exit 1 if damaged.
+    Check(check::Args),
 }
 
 pub fn run(command: Command) -> anyhow::Result<()> {
@@ -55,6 +58,7 @@ pub fn run(command: Command) -> anyhow::Result<()> {
         Command::Fuse(a) => fuse::run(a),
         Command::Eval(a) => eval::run(a),
         Command::Demo(a) => demo::run(a),
+        Command::Check(a) => check::run(a),
     }
 }
 
