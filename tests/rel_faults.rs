@@ -35,7 +35,11 @@ fn run_ok(args: &[&dyn AsRef<std::ffi::OsStr>]) -> Duration {
         c.arg(a);
     }
     let out = c.output().unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     started.elapsed()
 }
 
@@ -45,7 +49,11 @@ fn run_killed(args: &[&dyn AsRef<std::ffi::OsStr>], after: Duration) {
     for a in args {
         c.arg(a);
     }
-    let mut child = c.stdout(Stdio::null()).stderr(Stdio::null()).spawn().unwrap();
+    let mut child = c
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
     std::thread::sleep(after);
     let _ = child.kill();
     let _ = child.wait();
@@ -78,7 +86,10 @@ fn without_moments(bytes: &[u8]) -> (Value, [f64; 2]) {
     if stats.is_null() {
         return (v, [0.0; 2]);
     }
-    let m = [stats["mean"].as_f64().unwrap(), stats["std"].as_f64().unwrap()];
+    let m = [
+        stats["mean"].as_f64().unwrap(),
+        stats["std"].as_f64().unwrap(),
+    ];
     stats["mean"] = Value::Null;
     stats["std"] = Value::Null;
     (v, m)
@@ -93,7 +104,10 @@ fn same_store(a: &Path, b: &Path) {
             let ((vx, mx), (vy, my)) = (without_moments(x), without_moments(y));
             assert_eq!(vx, vy, "{name}");
             for k in 0..2 {
-                assert!((mx[k] - my[k]).abs() <= 1e-9 * (1.0 + mx[k].abs()), "{name}");
+                assert!(
+                    (mx[k] - my[k]).abs() <= 1e-9 * (1.0 + mx[k].abs()),
+                    "{name}"
+                );
             }
         } else {
             assert!(x == y, "{name} differs");
@@ -114,8 +128,14 @@ fn ingest_killed_at_random_points_then_resumed_equals_one_run() {
     let dir = tempfile::tempdir().unwrap();
     let reference = dir.path().join("ref.zarr");
     let args = |store: &Path| -> Vec<std::ffi::OsString> {
-        let mut v: Vec<std::ffi::OsString> = vec!["ingest".into(), grid2x2().into(), "--store".into()];
-        v.extend([store.as_os_str().to_owned(), "--chunk".into(), "16".into(), "-q".into()]);
+        let mut v: Vec<std::ffi::OsString> =
+            vec!["ingest".into(), grid2x2().into(), "--store".into()];
+        v.extend([
+            store.as_os_str().to_owned(),
+            "--chunk".into(),
+            "16".into(),
+            "-q".into(),
+        ]);
         v
     };
     fn as_refs(v: &[std::ffi::OsString]) -> Vec<&dyn AsRef<std::ffi::OsStr>> {
@@ -139,7 +159,15 @@ fn ingest_killed_at_random_points_then_resumed_equals_one_run() {
 fn fuse_killed_at_random_points_then_rerun_equals_one_run() {
     let dir = tempfile::tempdir().unwrap();
     let store = dir.path().join("s.zarr");
-    run_ok(&[&"ingest", &grid2x2(), &"--store", &store, &"--chunk", &"64", &"-q"]);
+    run_ok(&[
+        &"ingest",
+        &grid2x2(),
+        &"--store",
+        &store,
+        &"--chunk",
+        &"64",
+        &"-q",
+    ]);
     let reference = dir.path().join("ref.tif");
     let full = run_ok(&[&"fuse", &store, &"--out", &reference, &"-q"]);
     let out_dir = dir.path().join("out");

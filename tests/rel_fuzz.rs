@@ -36,10 +36,22 @@ fn mutations() -> impl Strategy<Value = Vec<(f64, u8, bool)>> {
 fn mutate(bytes: &mut [u8], muts: &[(f64, u8, bool)]) {
     for &(at, byte, head) in muts {
         // Half the mutations hit the header and IFDs, where parsing happens.
-        let span = if head { bytes.len().min(1024) } else { bytes.len() };
+        let span = if head {
+            bytes.len().min(1024)
+        } else {
+            bytes.len()
+        };
         let i = ((at * span as f64) as usize).min(span - 1);
         bytes[i] = byte;
     }
+}
+
+/// Cases per test: `PROPTEST_CASES` when set (long campaigns), else `default`.
+fn cases(default: u32) -> u32 {
+    std::env::var("PROPTEST_CASES")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(default)
 }
 
 fn one_line(e: &impl std::fmt::Display) -> bool {
@@ -47,7 +59,7 @@ fn one_line(e: &impl std::fmt::Display) -> bool {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 400, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: cases(400), ..ProptestConfig::default() })]
 
     #[test]
     fn geotiff_reader_never_panics(file in 0..TIFFS.len(), muts in mutations()) {
@@ -160,7 +172,7 @@ fn exercise(store: &Path) {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 150, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: cases(48), ..ProptestConfig::default() })]
 
     #[test]
     fn store_metadata_reader_never_panics(

@@ -28,7 +28,12 @@ fn stderr(o: &Output) -> String {
 }
 
 fn ok(out: Output) -> Output {
-    assert!(out.status.success(), "exit {:?}: {}", out.status.code(), stderr(&out));
+    assert!(
+        out.status.success(),
+        "exit {:?}: {}",
+        out.status.code(),
+        stderr(&out)
+    );
     out
 }
 
@@ -46,7 +51,15 @@ fn refused(out: Output, needle: &str) -> String {
 /// `S`: grid2x2 ingested with --chunk 64 into `dir/s.zarr`.
 fn store_s(dir: &Path) -> PathBuf {
     let store = dir.join("s.zarr");
-    ok(run(&[&"ingest", &grid2x2(), &"--store", &store, &"--chunk", &"64", &"-q"]));
+    ok(run(&[
+        &"ingest",
+        &grid2x2(),
+        &"--store",
+        &store,
+        &"--chunk",
+        &"64",
+        &"-q",
+    ]));
     store
 }
 
@@ -125,7 +138,13 @@ fn nine_concurrent_ingests_keep_nine_dsms() {
         .collect();
     // Into one existing store, and into one store none of them finds.
     let existing = dir.path().join("existing.zarr");
-    ok(run(&[&"ingest", &grid2x2().join("tile_00.tif"), &"--store", &existing, &"-q"]));
+    ok(run(&[
+        &"ingest",
+        &grid2x2().join("tile_00.tif"),
+        &"--store",
+        &existing,
+        &"-q",
+    ]));
     for store in [existing, dir.path().join("fresh.zarr")] {
         let children: Vec<_> = inputs
             .iter()
@@ -154,10 +173,23 @@ fn nine_concurrent_ingests_keep_nine_dsms() {
 #[test]
 fn implausible_geotiffs_are_refused_at_ingest_and_leave_no_store() {
     let dir = tempfile::tempdir().unwrap();
-    let cases: Vec<(&str, Box<dyn Fn(&Path)>, &str)> = vec![
-        ("huge.tif", Box::new(|p| with_pixel_scale(p, 1e308, 1e308)), "implausible"),
-        ("tiny.tif", Box::new(|p| with_pixel_scale(p, 1e-300, 1e-300)), "implausible"),
-        ("nocrs.tif", Box::new(|p| with_undefined_tag(p, 34735)), "no CRS"),
+    type Make = Box<dyn Fn(&Path)>;
+    let cases: Vec<(&str, Make, &str)> = vec![
+        (
+            "huge.tif",
+            Box::new(|p| with_pixel_scale(p, 1e308, 1e308)),
+            "implausible",
+        ),
+        (
+            "tiny.tif",
+            Box::new(|p| with_pixel_scale(p, 1e-300, 1e-300)),
+            "implausible",
+        ),
+        (
+            "nocrs.tif",
+            Box::new(|p| with_undefined_tag(p, 34735)),
+            "no CRS",
+        ),
     ];
     for (name, make, needle) in cases {
         let file = dir.path().join(name);
@@ -165,12 +197,19 @@ fn implausible_geotiffs_are_refused_at_ingest_and_leave_no_store() {
         let store = dir.path().join(format!("{name}.zarr"));
         let err = refused(run(&[&"ingest", &file, &"--store", &store]), needle);
         assert!(err.contains(name), "{err}");
-        assert!(!store.exists(), "{name}: a store was left at {}", store.display());
+        assert!(
+            !store.exists(),
+            "{name}: a store was left at {}",
+            store.display()
+        );
     }
     // Geo tags of type UNDEFINED are not numbers: ignored as GDAL does.
     let file = dir.path().join("undef_scale.tif");
     with_undefined_tag(&file, 33550);
-    let err = refused(run(&[&"ingest", &file, &"--store", &dir.path().join("u.zarr")]), "no georeferencing");
+    let err = refused(
+        run(&[&"ingest", &file, &"--store", &dir.path().join("u.zarr")]),
+        "no georeferencing",
+    );
     assert!(err.contains("undef_scale.tif"), "{err}");
 }
 
@@ -180,29 +219,58 @@ fn a_damaged_dsm_group_is_reported_and_left_out() {
     let store = store_s(dir.path());
     let group = store.join("tile_01/zarr.json");
     let original = std::fs::read_to_string(&group).unwrap();
-    let damages: Vec<(&str, Box<dyn Fn(&mut Value)>)> = vec![
-        ("scale 1e308", Box::new(|v| v["attributes"]["dsmstream"]["geotransform"][1] = 1e308.into())),
-        ("footprint null", Box::new(|v| v["attributes"]["dsmstream"]["footprint"][2] = Value::Null)),
-        ("chunk 0", Box::new(|v| v["attributes"]["dsmstream"]["levels"][0]["chunk"] = 0.into())),
-        ("no levels", Box::new(|v| v["attributes"]["dsmstream"]["levels"] = Value::Array(vec![]))),
+    type Damage = Box<dyn Fn(&mut Value)>;
+    let damages: Vec<(&str, Damage)> = vec![
+        (
+            "scale 1e308",
+            Box::new(|v| v["attributes"]["dsmstream"]["geotransform"][1] = 1e308.into()),
+        ),
+        (
+            "footprint null",
+            Box::new(|v| v["attributes"]["dsmstream"]["footprint"][2] = Value::Null),
+        ),
+        (
+            "chunk 0",
+            Box::new(|v| v["attributes"]["dsmstream"]["levels"][0]["chunk"] = 0.into()),
+        ),
+        (
+            "no levels",
+            Box::new(|v| v["attributes"]["dsmstream"]["levels"] = Value::Array(vec![])),
+        ),
     ];
     for (what, damage) in damages {
         std::fs::write(&group, &original).unwrap();
         edit_json(&group, damage);
         let out = ok(run(&[&"info", &store, &"--json"]));
         let err = stderr(&out);
-        assert!(err.contains("tile_01") && err.contains("left out"), "{what}: {err}");
+        assert!(
+            err.contains("tile_01") && err.contains("left out"),
+            "{what}: {err}"
+        );
         let info: Value = serde_json::from_slice(&out.stdout).unwrap();
         assert_eq!(info["dsms"].as_array().unwrap().len(), 3, "{what}");
         let fuse = run(&[&"fuse", &store, &"--out", &dir.path().join("f.tif"), &"-q"]);
-        assert!(!stderr(&fuse).contains("panicked"), "{what}: {}", stderr(&fuse));
+        assert!(
+            !stderr(&fuse).contains("panicked"),
+            "{what}: {}",
+            stderr(&fuse)
+        );
         let check = run(&[&"check", &store]);
         assert_eq!(check.status.code(), Some(1), "{what}");
         let text = String::from_utf8_lossy(&check.stdout);
-        assert!(text.contains("DAMAGED  tile_01") && text.contains("re-ingest tile_01"), "{what}: {text}");
+        assert!(
+            text.contains("DAMAGED  tile_01") && text.contains("re-ingest tile_01"),
+            "{what}: {text}"
+        );
     }
     // Re-ingesting the damaged DSM repairs the store.
-    ok(run(&[&"ingest", &grid2x2().join("tile_01.tif"), &"--store", &store, &"-q"]));
+    ok(run(&[
+        &"ingest",
+        &grid2x2().join("tile_01.tif"),
+        &"--store",
+        &store,
+        &"-q",
+    ]));
     ok(run(&[&"check", &store]));
 }
 
@@ -212,7 +280,9 @@ fn unsafe_or_duplicate_catalog_ids_are_refused_on_open() {
     let store = store_s(dir.path());
     let root = store.join("zarr.json");
     let original = std::fs::read_to_string(&root).unwrap();
-    edit_json(&root, |v| v["attributes"]["dsmstream"]["dsms"][0] = "../outside".into());
+    edit_json(&root, |v| {
+        v["attributes"]["dsmstream"]["dsms"][0] = "../outside".into()
+    });
     refused(run(&[&"info", &store]), "../outside");
     std::fs::write(&root, &original).unwrap();
     edit_json(&root, |v| {
@@ -235,7 +305,10 @@ fn a_missing_chunk_is_an_error_not_no_data() {
     assert!(chunk.is_file());
     std::fs::remove_file(&chunk).unwrap();
     let name = chunk.display().to_string();
-    refused(run(&[&"fuse", &store, &"--out", &dir.path().join("f.tif")]), &name);
+    refused(
+        run(&[&"fuse", &store, &"--out", &dir.path().join("f.tif")]),
+        &name,
+    );
     assert!(!dir.path().join("f.tif").exists());
     refused(run(&[&"eval", &store]), &name);
     let check = run(&[&"check", &store, &"--json"]);
@@ -249,11 +322,27 @@ fn a_missing_chunk_is_an_error_not_no_data() {
         .collect();
     assert_eq!(bad.len(), 1, "{report}");
     assert_eq!(bad[0]["id"], "tile_01");
-    assert!(bad[0]["problems"][0].as_str().unwrap().contains(&name), "{report}");
+    assert!(
+        bad[0]["problems"][0].as_str().unwrap().contains(&name),
+        "{report}"
+    );
     // --force re-ingest repairs it; an unchanged source alone is skipped.
-    ok(run(&[&"ingest", &"--force", &grid2x2().join("tile_01.tif"), &"--store", &store, &"-q"]));
+    ok(run(&[
+        &"ingest",
+        &"--force",
+        &grid2x2().join("tile_01.tif"),
+        &"--store",
+        &store,
+        &"-q",
+    ]));
     ok(run(&[&"check", &store]));
-    ok(run(&[&"fuse", &store, &"--out", &dir.path().join("f.tif"), &"-q"]));
+    ok(run(&[
+        &"fuse",
+        &store,
+        &"--out",
+        &dir.path().join("f.tif"),
+        &"-q",
+    ]));
 }
 
 #[test]
@@ -268,8 +357,14 @@ fn a_garbled_chunk_and_changed_statistics_are_found_by_check() {
     let check = run(&[&"check", &store]);
     assert_eq!(check.status.code(), Some(1));
     let text = String::from_utf8_lossy(&check.stdout);
-    assert!(text.contains("DAMAGED  tile_02") && text.contains("unreadable chunk"), "{text}");
-    assert!(text.contains("DAMAGED  tile_03") && text.contains("differ"), "{text}");
+    assert!(
+        text.contains("DAMAGED  tile_02") && text.contains("unreadable chunk"),
+        "{text}"
+    );
+    assert!(
+        text.contains("DAMAGED  tile_03") && text.contains("differ"),
+        "{text}"
+    );
     assert!(text.contains("ok       tile_00"), "{text}");
     refused(run(&[&"check", &dir.path().join("nothing")]), "nothing");
 }
@@ -297,10 +392,24 @@ fn poses_implying_a_runaway_mosaic_are_refused_early() {
     let dir = tempfile::tempdir().unwrap();
     let store = store_s(dir.path());
     let shift = |t: f64| -> Value {
-        serde_json::json!([[1.0, 0.0, 0.0, t], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+        serde_json::json!([
+            [1.0, 0.0, 0.0, t],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 0.0],
+            [0.0, 0.0, 0.0, 1.0]
+        ])
     };
-    let rot90 = serde_json::json!([[0.0, -1.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]);
-    for (what, m) in [("1e6 m", shift(1e6)), ("1e9 m", shift(1e9)), ("90 degrees", rot90)] {
+    let rot90 = serde_json::json!([
+        [0.0, -1.0, 0.0, 0.0],
+        [1.0, 0.0, 0.0, 0.0],
+        [0.0, 0.0, 1.0, 0.0],
+        [0.0, 0.0, 0.0, 1.0]
+    ]);
+    for (what, m) in [
+        ("1e6 m", shift(1e6)),
+        ("1e9 m", shift(1e9)),
+        ("90 degrees", rot90),
+    ] {
         let poses = dir.path().join("poses.json");
         let entries: Vec<Value> = (0..4)
             .map(|k| {
@@ -308,12 +417,18 @@ fn poses_implying_a_runaway_mosaic_are_refused_early() {
                 serde_json::json!({"id": format!("tile_0{k}"), "matrix_world": m})
             })
             .collect();
-        std::fs::write(&poses, serde_json::json!({"crs": "EPSG:32617", "poses": entries, "edges": []}).to_string()).unwrap();
+        std::fs::write(&poses, serde_json::json!({"crs": "EPSG:32617", "poses": entries, "edges": [], "graph": "full", "gauge": "mean"}).to_string()).unwrap();
         let out = dir.path().join("f.tif");
         let started = std::time::Instant::now();
-        let err = refused(run(&[&"fuse", &store, &"--poses", &poses, &"--out", &out]), "tile_03");
+        let err = refused(
+            run(&[&"fuse", &store, &"--poses", &poses, &"--out", &out]),
+            "tile_03",
+        );
         assert!(err.contains("mosaic would be"), "{what}: {err}");
-        assert!(started.elapsed().as_secs() < 10, "{what}: not refused early");
+        assert!(
+            started.elapsed().as_secs() < 10,
+            "{what}: not refused early"
+        );
         let left: Vec<_> = std::fs::read_dir(dir.path())
             .unwrap()
             .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
@@ -332,26 +447,40 @@ fn a_read_only_store_is_refused_with_exit_2() {
     use std::os::unix::fs::PermissionsExt;
     std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o755)).unwrap();
     for e in walk(&store) {
-        std::fs::set_permissions(&e, std::fs::Permissions::from_mode(if e.is_dir() { 0o555 } else { 0o444 })).unwrap();
+        std::fs::set_permissions(
+            &e,
+            std::fs::Permissions::from_mode(if e.is_dir() { 0o555 } else { 0o444 }),
+        )
+        .unwrap();
     }
     std::fs::set_permissions(&extra, std::fs::Permissions::from_mode(0o444)).unwrap();
     // As root, permissions do not stop writes: run as nobody.
     let as_root = unsafe_is_root();
     let mut cmd = if as_root {
         let mut c = Command::new("setpriv");
-        c.args(["--reuid=65534", "--regid=65534", "--clear-groups"]).arg(env!("CARGO_BIN_EXE_dsmstream"));
+        c.args(["--reuid=65534", "--regid=65534", "--clear-groups"])
+            .arg(env!("CARGO_BIN_EXE_dsmstream"));
         c
     } else {
         bin()
     };
-    let out = cmd.arg("ingest").arg(&extra).arg("--store").arg(&store).output().unwrap();
+    let out = cmd
+        .arg("ingest")
+        .arg(&extra)
+        .arg("--store")
+        .arg(&store)
+        .output()
+        .unwrap();
     refused(out, "read-only");
     assert_eq!(catalog_ids(&store).len(), 4);
 }
 
 fn unsafe_is_root() -> bool {
     std::fs::read_to_string("/proc/self/status")
-        .map(|s| s.lines().any(|l| l.starts_with("Uid:") && l.split_whitespace().nth(1) == Some("0")))
+        .map(|s| {
+            s.lines()
+                .any(|l| l.starts_with("Uid:") && l.split_whitespace().nth(1) == Some("0"))
+        })
         .unwrap_or(false)
 }
 

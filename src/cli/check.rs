@@ -79,7 +79,11 @@ fn render(report: &CheckReport) -> String {
     }
     let damaged: Vec<_> = report.damaged().collect();
     if damaged.is_empty() && report.catalog_problems.is_empty() {
-        s += &format!("{}: all {} DSMs ok\n", report.store.display(), report.dsms.len());
+        s += &format!(
+            "{}: all {} DSMs ok\n",
+            report.store.display(),
+            report.dsms.len()
+        );
         return s;
     }
     for d in damaged {

@@ -23,8 +23,8 @@ use std::path::{Path, PathBuf};
 use serde::Serialize;
 
 use crate::cache::ChunkCache;
-use crate::geotiff::reader::GeoTiffError;
 use crate::fuse::{PoseSet, PoseXf};
+use crate::geotiff::reader::GeoTiffError;
 use crate::store::{Store, StoreError};
 pub use pairs::PairEval;
 pub use reference::{DiffSample, ReferenceEval};

@@ -76,7 +76,7 @@ pub fn check_mosaic(
         Some(b) => ((b[2] - b[0]) / gsd, (b[3] - b[1]) / gsd),
         None => (0.0, 0.0),
     };
-    if !finite || !g.iter().all(|v| v.is_finite()) || !(w.is_finite() && h.is_finite()) {
+    if !(finite && g.iter().all(|v| v.is_finite()) && w.is_finite() && h.is_finite()) {
         return refuse("the corrected footprints are not finite".into());
     }
     if w > u32::MAX as f64 || h > u32::MAX as f64 {

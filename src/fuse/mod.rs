@@ -23,8 +23,8 @@ use rayon::prelude::*;
 
 use crate::cache::{CacheStats, ChunkCache};
 use crate::geotiff::writer::{CogOptions, CogWriter, GeoTiffWriteError};
-use crate::raster::GeoTransform;
 use crate::poses::PosesError;
+use crate::raster::GeoTransform;
 use crate::store::{Store, StoreError};
 pub use corrected::{CorrectedSurface, PoseXf};
 pub use layout::{OutputGrid, PlacedDsm};

@@ -133,7 +133,12 @@ fn check_dsm(
             chunks_read = check_levels(root, fs, &meta, &mut problems);
         }
     }
-    tracing::info!(dsm = id, problems = problems.count, chunks_read, "dsm checked");
+    tracing::info!(
+        dsm = id,
+        problems = problems.count,
+        chunks_read,
+        "dsm checked"
+    );
     DsmCheck {
         id: id.to_string(),
         source,
@@ -179,10 +184,19 @@ fn check_levels(
         }
     }
     if problems.count == 0 {
-        compare_stats(&root.join(&meta.id).join("zarr.json"), meta, &stats, problems);
+        compare_stats(
+            &root.join(&meta.id).join("zarr.json"),
+            meta,
+            &stats,
+            problems,
+        );
     }
     read
 }
+
+/// One chunk read: its values (None when empty), or the problem; and
+/// whether a file was read.
+type ChunkResult = (Result<Option<Vec<f32>>, String>, bool);
 
 struct ChunkRow {
     /// Whole image rows of the chunk row, row-major (NaN where unreadable).
@@ -203,9 +217,12 @@ fn read_chunk_row(
 ) -> ChunkRow {
     let lm = &meta.levels[level];
     let c = lm.chunk as usize;
-    let (w, rows) = (lm.width as usize, lm.chunk.min(lm.height - cy * lm.chunk) as usize);
+    let (w, rows) = (
+        lm.width as usize,
+        lm.chunk.min(lm.height - cy * lm.chunk) as usize,
+    );
     let record = meta.chunk_record.as_ref();
-    let results: Vec<(Result<Option<Vec<f32>>, String>, bool)> = (0..chunks_x)
+    let results: Vec<ChunkResult> = (0..chunks_x)
         .into_par_iter()
         .map(|cx| {
             let file = dir.join(format!("c/{cy}/{cx}"));
@@ -253,12 +270,7 @@ fn read_chunk_row(
 }
 
 /// Statistics recomputed from level 0 against the catalog's.
-fn compare_stats(
-    file: &Path,
-    meta: &DsmMeta,
-    stats: &HeightAccumulator,
-    problems: &mut Problems,
-) {
+fn compare_stats(file: &Path, meta: &DsmMeta, stats: &HeightAccumulator, problems: &mut Problems) {
     let file = file.display();
     if stats.valid_count() != meta.valid_count {
         problems.add(format!(
@@ -275,7 +287,10 @@ fn compare_stats(
     let scale = want.min.abs().max(want.max.abs()) + 1.0;
     let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * scale + 1e-12;
     let close_std = |a: f64, b: f64| (a - b).abs() <= 1e-6 * (b.abs() + 1e-3);
-    if s.min != want.min || s.max != want.max || !close(s.mean, want.mean) || !close_std(s.std, want.std)
+    if s.min != want.min
+        || s.max != want.max
+        || !close(s.mean, want.mean)
+        || !close_std(s.std, want.std)
     {
         problems.add(format!(
             "{file}: level 0 heights {s:?} differ from the catalog's {want:?}"

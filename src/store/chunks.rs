@@ -129,7 +129,12 @@ mod tests {
     #[test]
     fn bad_records_are_refused() {
         let levels = [level(100, 60, 20)];
-        for runs in [vec![[0, 0]], vec![[3, 2], [4, 1]], vec![[14, 2]], vec![[u64::MAX, 2]]] {
+        for runs in [
+            vec![[0, 0]],
+            vec![[3, 2], [4, 1]],
+            vec![[14, 2]],
+            vec![[u64::MAX, 2]],
+        ] {
             let r = ChunkRecord {
                 empty_runs: vec![runs.clone()],
             };

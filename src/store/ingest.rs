@@ -179,8 +179,8 @@ fn write_all(
     open: &SourceOpener,
     outcomes: &mut Vec<DsmOutcome>,
 ) -> Result<(), IngestError> {
-    let fs = FilesystemStore::new(store_path)
-        .map_err(|e| StoreError::zarr(store_path.display(), e))?;
+    let fs =
+        FilesystemStore::new(store_path).map_err(|e| StoreError::zarr(store_path.display(), e))?;
     let fs = Arc::new(fs);
     for (file, action) in todo {
         let outcome = ingest_one(&fs, store_path, file, action, options, progress, open)?;
@@ -308,9 +308,8 @@ fn write_levels(
         storage: *settings,
         chunk_record: Some(ChunkRecord { empty_runs }),
     };
-    super::validate::check_dsm(&meta).map_err(|m| {
-        IngestError::BadInput(format!("{}: {m}", file.path.display()))
-    })?;
+    super::validate::check_dsm(&meta)
+        .map_err(|m| IngestError::BadInput(format!("{}: {m}", file.path.display())))?;
     catalog::write_group_attributes(tmp, &meta.to_attributes())?;
     Ok(meta)
 }

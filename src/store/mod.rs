@@ -38,8 +38,8 @@ pub use catalog::{
 };
 pub use chunks::ChunkRecord;
 pub use grid::{ChunkReadError, StoreGrid};
-pub use lock::StoreLock;
 pub use ingest::{ingest, IngestError, IngestOptions, IngestReport};
+pub use lock::StoreLock;
 pub use view::StorePyramid;
 
 use crate::raster::Crs;
@@ -239,7 +239,10 @@ impl Store {
     pub fn chunk_error(&self, dsm: usize, source: ChunkReadError) -> StoreError {
         StoreError::Chunk {
             store: self.root.display().to_string(),
-            id: self.dsms.get(dsm).map_or_else(String::new, |m| m.id.clone()),
+            id: self
+                .dsms
+                .get(dsm)
+                .map_or_else(String::new, |m| m.id.clone()),
             source,
         }
     }

@@ -176,7 +176,10 @@ fn validate(
         ));
     }
     if raster.crs.epsg.is_none() && raster.crs.wkt.is_none() && raster.crs.geokeys.is_empty() {
-        return bad("no CRS (no GeoKeyDirectory): assign one first, e.g. gdal_edit.py -a_srs EPSG:326xx".into());
+        return bad(
+            "no CRS (no GeoKeyDirectory): assign one first, e.g. gdal_edit.py -a_srs EPSG:326xx"
+                .into(),
+        );
     }
     if raster.crs.is_geographic {
         return bad(format!(

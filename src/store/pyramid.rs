@@ -297,7 +297,11 @@ impl PyramidWriter {
                 ));
             }
         }
-        Ok(self.levels.into_iter().map(|l| l.empty.into_runs()).collect())
+        Ok(self
+            .levels
+            .into_iter()
+            .map(|l| l.empty.into_runs())
+            .collect())
     }
 }
 

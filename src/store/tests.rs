@@ -485,7 +485,10 @@ fn a_refused_input_leaves_no_store_at_a_fresh_path() {
     let mut inputs = Inputs::new();
     let nodata = inputs.add("nodata.tif", 30, 30, utm(26917), vec![f32::NAN; 900]);
     let dir = tempfile::tempdir().unwrap();
-    for fresh in [dir.path().join("new.zarr"), dir.path().join("empty_dir.zarr")] {
+    for fresh in [
+        dir.path().join("new.zarr"),
+        dir.path().join("empty_dir.zarr"),
+    ] {
         let existed = fresh.ends_with("empty_dir.zarr");
         if existed {
             std::fs::create_dir(&fresh).unwrap();
@@ -493,7 +496,11 @@ fn a_refused_input_leaves_no_store_at_a_fresh_path() {
         let err = run(&inputs, std::slice::from_ref(&nodata), &fresh, &options(16)).unwrap_err();
         assert!(err.to_string().contains("no valid pixels"), "{err}");
         if existed {
-            assert_eq!(std::fs::read_dir(&fresh).unwrap().count(), 0, "left files behind");
+            assert_eq!(
+                std::fs::read_dir(&fresh).unwrap().count(),
+                0,
+                "left files behind"
+            );
         } else {
             assert!(!fresh.exists(), "{} left behind", fresh.display());
         }
@@ -520,10 +527,18 @@ fn ingest_records_empty_chunks_and_a_missing_chunk_reads_as_an_error() {
     let cache = ChunkCache::new(1 << 20);
     let mut grid = StoreGrid::new(&store, &cache, 0, 0).unwrap();
     assert!(grid.get(3, 3).is_nan());
-    assert!(grid.take_chunk_error().is_none(), "an empty chunk is no error");
+    assert!(
+        grid.take_chunk_error().is_none(),
+        "an empty chunk is no error"
+    );
     assert!(grid.get(20, 40).is_nan());
-    let err = grid.take_chunk_error().expect("the missing chunk is an error");
-    assert!(matches!(err, super::ChunkReadError::Missing { .. }), "{err}");
+    let err = grid
+        .take_chunk_error()
+        .expect("the missing chunk is an error");
+    assert!(
+        matches!(err, super::ChunkReadError::Missing { .. }),
+        "{err}"
+    );
     assert!(err.to_string().contains("a/0/c/2/1"), "{err}");
 }
 

@@ -65,7 +65,10 @@ pub fn check_crs(crs: &Crs) -> Result<(), String> {
         ));
     }
     if crs.epsg.is_none() && crs.wkt.is_none() && crs.geokeys.is_empty() {
-        return Err("no CRS (no GeoKeyDirectory): assign one first, e.g. gdal_edit.py -a_srs EPSG:326xx".into());
+        return Err(
+            "no CRS (no GeoKeyDirectory): assign one first, e.g. gdal_edit.py -a_srs EPSG:326xx"
+                .into(),
+        );
     }
     Ok(())
 }
@@ -93,7 +96,10 @@ pub fn check_raster(width: u64, height: u64, gt: &GeoTransform) -> Result<(), St
         }
     }
     let b = gt.bounds(width, height);
-    if !b.iter().all(|v| v.is_finite() && v.abs() <= MAX_COORDINATE_M) {
+    if !b
+        .iter()
+        .all(|v| v.is_finite() && v.abs() <= MAX_COORDINATE_M)
+    {
         return Err(format!(
             "extent {b:?} reaches past {MAX_COORDINATE_M:e} m from the CRS origin (bad pixel size or origin)"
         ));
@@ -163,14 +169,16 @@ pub fn check_dsm(meta: &DsmMeta) -> Result<(), String> {
     let s = &meta.height_stats;
     let finite = [s.min, s.max, s.mean, s.std].iter().all(|v| v.is_finite());
     let slack = 1e-6 * (s.min.abs() + s.max.abs() + 1.0);
-    if !finite || s.min > s.max || s.std < 0.0 || s.mean < s.min - slack || s.mean > s.max + slack
-    {
-        return Err(format!("height statistics {s:?} are not finite and consistent"));
+    if !finite || s.min > s.max || s.std < 0.0 || s.mean < s.min - slack || s.mean > s.max + slack {
+        return Err(format!(
+            "height statistics {s:?} are not finite and consistent"
+        ));
     }
     let f = &meta.footprint;
     let b = meta.geotransform.bounds(meta.width, meta.height);
     let tol = meta.gsd_m();
-    let inside = f[0] >= b[0] - tol && f[1] >= b[1] - tol && f[2] <= b[2] + tol && f[3] <= b[3] + tol;
+    let inside =
+        f[0] >= b[0] - tol && f[1] >= b[1] - tol && f[2] <= b[2] + tol && f[3] <= b[3] + tol;
     if !f.iter().all(|v| v.is_finite()) || f[0] > f[2] || f[1] > f[3] || !inside {
         return Err(format!(
             "footprint {f:?} is not a box inside the raster's extent {b:?}"
@@ -203,7 +211,16 @@ mod tests {
 
     #[test]
     fn ids_that_leave_the_store_are_refused() {
-        for id in ["../outside", "a/b", "..", ".", "", ".hidden", "x.tmp-1", "a\\b"] {
+        for id in [
+            "../outside",
+            "a/b",
+            "..",
+            ".",
+            "",
+            ".hidden",
+            "x.tmp-1",
+            "a\\b",
+        ] {
             assert!(check_id(id).is_err(), "{id:?}");
         }
         check_id("tile_01").unwrap();
@@ -219,13 +236,17 @@ mod tests {
     #[test]
     fn implausible_numbers_are_refused() {
         check_dsm(&sample_meta("a")).unwrap();
-        let cases: Vec<(&str, Box<dyn Fn(&mut DsmMeta)>)> = vec![
+        type Mutation = Box<dyn Fn(&mut DsmMeta)>;
+        let cases: Vec<(&str, Mutation)> = vec![
             ("scale 1e308", Box::new(|m| m.geotransform.0[1] = 1e308)),
             ("scale 1e-300", Box::new(|m| m.geotransform.0[5] = -1e-300)),
             ("origin 1e12", Box::new(|m| m.geotransform.0[0] = 1e12)),
             ("nan stats", Box::new(|m| m.height_stats.mean = f64::NAN)),
             ("min > max", Box::new(|m| m.height_stats.min = 1e6)),
-            ("inf footprint", Box::new(|m| m.footprint[2] = f64::INFINITY)),
+            (
+                "inf footprint",
+                Box::new(|m| m.footprint[2] = f64::INFINITY),
+            ),
             ("footprint outside", Box::new(|m| m.footprint[0] = 0.0)),
             ("no valid pixels", Box::new(|m| m.valid_count = 0)),
             ("chunk 0", Box::new(|m| m.levels[1].chunk = 0)),
