@@ -2,6 +2,8 @@
 //! never a part of one (an interrupted run, a full disk): the bytes go to a
 //! temporary name in the same folder, are synced, then renamed over the target.
 //! On failure the temporary file is removed and the target is left as it was.
+//! A killed process cannot remove its temporaries: [`remove_stale_siblings`]
+//! lets the next run delete those of dead processes.
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
@@ -41,9 +43,85 @@ pub fn write_bytes_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> 
     write_atomically(path, |out| out.write_all(bytes))
 }
 
+/// True unless process `pid` of this machine is known to be gone (no
+/// `/proc/<pid>`). Without `/proc` nothing is known, so every process counts
+/// as alive and nothing is deleted.
+pub fn process_alive(pid: u32) -> bool {
+    pid == std::process::id()
+        || !Path::new("/proc/self").exists()
+        || Path::new(&format!("/proc/{pid}")).exists()
+}
+
+/// Delete the temporaries of dead processes next to `path`: files named
+/// `<name><tag><pid>` or `<name><tag><pid>-<n>` for each tag in `tags` (the
+/// COG writer's `.spill-` and `.tmp-`). Returns how many were removed;
+/// errors are ignored (a temporary that cannot be removed is harmless).
+pub fn remove_stale_siblings(path: &Path, tags: &[&str]) -> usize {
+    let (Some(dir), Some(name)) = (path.parent(), path.file_name()) else {
+        return 0;
+    };
+    let dir = if dir.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        dir
+    };
+    let name = name.to_string_lossy();
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return 0;
+    };
+    let mut removed = 0;
+    for entry in entries.filter_map(Result::ok) {
+        let file = entry.file_name().to_string_lossy().into_owned();
+        let Some(rest) = file.strip_prefix(name.as_ref()) else {
+            continue;
+        };
+        let Some(tail) = tags.iter().find_map(|t| rest.strip_prefix(t)) else {
+            continue;
+        };
+        let pid_text = tail.split('-').next().unwrap_or("");
+        let Ok(pid) = pid_text.parse::<u32>() else {
+            continue;
+        };
+        let tail_ok = tail[pid_text.len()..]
+            .strip_prefix('-')
+            .is_none_or(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()));
+        if tail_ok && !process_alive(pid) && std::fs::remove_file(entry.path()).is_ok() {
+            tracing::info!(path = %entry.path().display(), "stale temporary removed");
+            removed += 1;
+        }
+    }
+    removed
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn stale_siblings_of_dead_processes_are_removed() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("fused.tif");
+        let me = std::process::id();
+        let names = [
+            "fused.tif.spill-0-3".to_string(), // pid 0: never a live process
+            "fused.tif.tmp-0".to_string(),
+            format!("fused.tif.spill-{me}-0"), // alive: kept
+            "fused.tif.spill-0-x".to_string(), // not ours: kept
+            "other.tif.spill-0-1".to_string(), // another output: kept
+        ];
+        for n in &names {
+            std::fs::write(dir.path().join(n), b"x").unwrap();
+        }
+        assert_eq!(remove_stale_siblings(&out, &[".spill-", ".tmp-"]), 2);
+        let mut left: Vec<String> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        left.sort();
+        let mut want = names[2..].to_vec();
+        want.sort();
+        assert_eq!(left, want);
+    }
 
     #[test]
     fn a_failed_write_leaves_the_old_file_and_no_temporary() {

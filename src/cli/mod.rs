@@ -4,6 +4,7 @@
 //! `icp_args` (the ICP flags of `pair` and `align`) are shared by them.
 
 pub mod align;
+pub mod check;
 pub mod common;
 pub mod demo;
 pub mod eval;
@@ -49,6 +50,8 @@ pub enum Command {
     Eval(eval::Args),
     /// Run ingest, align, fuse and eval on the bundled fixtures.
     Demo(demo::Args),
+    /// Verify every DSM of a store (chunks, metadata, statistics); exit 1 if damaged.
+    Check(check::Args),
 }
 
 pub fn run(command: Command) -> anyhow::Result<()> {
@@ -60,6 +63,7 @@ pub fn run(command: Command) -> anyhow::Result<()> {
         Command::Fuse(a) => fuse::run(a),
         Command::Eval(a) => eval::run(a),
         Command::Demo(a) => demo::run(a),
+        Command::Check(a) => check::run(a),
     }
 }
 

@@ -24,6 +24,7 @@ use serde::Serialize;
 
 use crate::cache::ChunkCache;
 use crate::fuse::{PoseSet, PoseXf};
+use crate::geotiff::reader::GeoTiffError;
 use crate::store::{Store, StoreError};
 pub use pairs::PairEval;
 pub use reference::{DiffSample, ReferenceEval};
@@ -32,21 +33,28 @@ use surfaces::Placement;
 
 #[derive(Debug, thiserror::Error)]
 pub enum EvalError {
-    /// Bad input (reference in another CRS, not overlapping, unreadable): exit 2.
+    /// Bad input (reference in another CRS, not overlapping, bad options): exit 2.
     #[error("{0}")]
     Input(String),
-    #[error("{0}")]
+    /// The store could not be read (damaged metadata, missing or bad chunks).
+    #[error(transparent)]
     Store(#[from] StoreError),
-    /// A chunk of the store could not be read.
-    #[error("{0}")]
-    Read(String),
-    #[error("{0}")]
-    Io(String),
+    /// The reference GeoTIFF could not be read.
+    #[error(transparent)]
+    Reference(#[from] GeoTiffError),
+    #[error("thread pool: {0}")]
+    ThreadPool(#[from] rayon::ThreadPoolBuildError),
 }
 
 impl EvalError {
+    /// The user's input (options, reference, the store) is at fault: exit code 2.
     pub fn is_bad_input(&self) -> bool {
-        matches!(self, EvalError::Input(_))
+        match self {
+            EvalError::Input(_) => true,
+            EvalError::Store(e) => e.is_bad_input(),
+            EvalError::Reference(e) => e.is_bad_input(),
+            EvalError::ThreadPool(_) => false,
+        }
     }
 }
 
@@ -120,8 +128,7 @@ pub fn evaluate(
     let after = poses.map(|p| Placement::new(store, &p.poses));
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(config.threads.max(1))
-        .build()
-        .map_err(|e| EvalError::Io(format!("thread pool: {e}")))?;
+        .build()?;
     // the reference first: its input errors come before the long pair work
     let reference = match reference_path {
         Some(path) => Some(reference::eval_reference(

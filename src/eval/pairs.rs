@@ -143,7 +143,7 @@ fn eval_pair(
         .take_error()
         .or_else(|| corrected.as_mut().and_then(|s| s.take_error()));
     if let Some(e) = errors {
-        return Err(EvalError::Read(format!("{}: {e}", store.root().display())));
+        return Err(e.into());
     }
     let before_stats = diff_stats(&mut dh_before, config.tau_m);
     let after_stats = corrected

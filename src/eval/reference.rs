@@ -154,7 +154,7 @@ fn diff_chunk(
         .take_error()
         .or_else(|| corrected.as_mut().and_then(|s| s.take_error()));
     if let Some(e) = errors {
-        return Err(EvalError::Read(format!("{}: {e}", store.root().display())));
+        return Err(e.into());
     }
     Ok(out)
 }
@@ -166,14 +166,7 @@ fn raster_points(
     config: &EvalConfig,
     store_bounds: [f64; 4],
 ) -> Result<(Vec<[f64; 3]>, Vec<String>), EvalError> {
-    let read_err = |e: crate::geotiff::reader::GeoTiffError| {
-        if e.is_bad_input() {
-            EvalError::Input(e.to_string())
-        } else {
-            EvalError::Io(e.to_string())
-        }
-    };
-    let mut reader = GeoTiffReader::open(path).map_err(read_err)?;
+    let mut reader = GeoTiffReader::open(path)?;
     let info = reader.info().clone();
     if let Some(crs) = store.crs() {
         if !info.crs.same_as(crs) {
@@ -200,7 +193,7 @@ fn raster_points(
     let mut points = Vec::new();
     let mut row = Vec::new();
     for r in (0..info.height).step_by(stride as usize) {
-        reader.read_rows_into(r, 1, &mut row).map_err(read_err)?;
+        reader.read_rows_into(r, 1, &mut row)?;
         for c in (0..info.width).step_by(stride as usize) {
             let z = row[c as usize];
             if !z.is_nan() {

@@ -7,8 +7,7 @@
 use crate::cache::ChunkCache;
 use crate::fuse::layout::{FootprintIndex, PlacedDsm};
 use crate::fuse::{CorrectedSurface, PoseXf};
-use crate::grid::Grid;
-use crate::store::{Store, StoreGrid};
+use crate::store::{Store, StoreError, StoreGrid};
 
 use super::EvalError;
 
@@ -108,10 +107,10 @@ impl<'a> Surfaces<'a> {
     }
 
     /// The first chunk read error of any open surface.
-    pub fn take_error(&mut self) -> Option<String> {
+    pub fn take_error(&mut self) -> Option<StoreError> {
         for (dsm, s) in self.open.iter_mut().enumerate() {
-            if let Some(e) = s.as_mut().and_then(|s| s.grid_mut().take_error()) {
-                return Some(format!("DSM '{}': {e}", self.store.dsms()[dsm].id));
+            if let Some(e) = s.as_mut().and_then(|s| s.grid_mut().take_chunk_error()) {
+                return Some(self.store.chunk_error(dsm, e));
             }
         }
         None

@@ -12,6 +12,7 @@
 
 pub mod corrected;
 pub mod layout;
+pub mod limits;
 pub mod pose_set;
 pub mod render;
 
@@ -22,10 +23,12 @@ use rayon::prelude::*;
 
 use crate::cache::{CacheStats, ChunkCache};
 use crate::geotiff::writer::{CogOptions, CogWriter, GeoTiffWriteError};
+use crate::poses::PosesError;
 use crate::raster::GeoTransform;
 use crate::store::{Store, StoreError};
 pub use corrected::{CorrectedSurface, PoseXf};
 pub use layout::{OutputGrid, PlacedDsm};
+pub use limits::MosaicTooLarge;
 pub use pose_set::PoseSet;
 use render::TileRenderer;
 
@@ -37,20 +40,43 @@ pub enum FuseError {
     /// Bad input (poses that do not match the store, bad options): exit code 2.
     #[error("{0}")]
     Input(String),
-    #[error("{0}")]
+    /// The poses file could not be read or parsed.
+    #[error(transparent)]
+    Poses(#[from] PosesError),
+    /// The store could not be read (damaged metadata, missing or bad chunks).
+    #[error(transparent)]
     Store(#[from] StoreError),
-    #[error("{0}")]
+    /// The poses imply a mosaic beyond the limits: refused before writing.
+    #[error(transparent)]
+    TooLarge(#[from] MosaicTooLarge),
+    #[error(transparent)]
     Write(#[from] GeoTiffWriteError),
-    /// A chunk of the store could not be read.
-    #[error("{0}")]
-    Read(String),
-    #[error("{0}")]
-    Io(String),
+    #[error("{}: {action}: {source}", .path.display())]
+    Io {
+        path: PathBuf,
+        action: &'static str,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("thread pool: {0}")]
+    ThreadPool(#[from] rayon::ThreadPoolBuildError),
 }
 
 impl FuseError {
+    /// The user's input (options, poses, the store) is at fault: exit code 2.
     pub fn is_bad_input(&self) -> bool {
-        matches!(self, FuseError::Input(_))
+        match self {
+            FuseError::Input(_) | FuseError::TooLarge(_) => true,
+            FuseError::Poses(PosesError::Io { source, .. }) => matches!(
+                source.kind(),
+                std::io::ErrorKind::NotFound
+                    | std::io::ErrorKind::PermissionDenied
+                    | std::io::ErrorKind::IsADirectory
+            ),
+            FuseError::Poses(e) => e.is_bad_input(),
+            FuseError::Store(e) => e.is_bad_input(),
+            FuseError::Write(_) | FuseError::Io { .. } | FuseError::ThreadPool(_) => false,
+        }
     }
 }
 
@@ -131,8 +157,11 @@ pub fn fuse_per_dsm(
     dir: &Path,
     progress: Progress,
 ) -> Result<Vec<FuseReport>, FuseError> {
-    std::fs::create_dir_all(dir)
-        .map_err(|e| FuseError::Io(format!("{}: creating folder: {e}", dir.display())))?;
+    std::fs::create_dir_all(dir).map_err(|source| FuseError::Io {
+        path: dir.to_path_buf(),
+        action: "creating folder",
+        source,
+    })?;
     let mut reports: Vec<FuseReport> = Vec::new();
     for (index, meta) in store.dsms().iter().enumerate() {
         let path = dir.join(format!("{}.tif", meta.id));
@@ -189,6 +218,11 @@ fn write_raster(
             store.root().display()
         ))
     })?;
+    limits::check_mosaic(store, poses, &placed, &grid, cache.budget_bytes())?;
+    let removed = crate::atomic::remove_stale_siblings(out, &[".spill-", ".tmp-"]);
+    if removed > 0 {
+        tracing::warn!(path = %out.display(), removed, "temporaries of killed runs removed");
+    }
     let crs = store.crs().cloned().unwrap_or_default();
     let options = CogOptions {
         tile_size: config.tile_size,
@@ -211,8 +245,7 @@ fn write_raster(
     let total = order.len() as u64;
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(config.threads.max(1))
-        .build()
-        .map_err(|e| FuseError::Io(format!("thread pool: {e}")))?;
+        .build()?;
     let batch = 4 * config.threads.max(1);
     let (mut done, mut valid_pixels) = (0u64, 0u64);
     for tiles in order.chunks(batch) {

@@ -32,13 +32,7 @@ impl PoseSet {
 
     /// Read `path` and match its poses to the store's DSMs by id.
     pub fn from_file(store: &Store, path: &Path) -> Result<PoseSet, FuseError> {
-        let file = PosesFile::read(path).map_err(|e| {
-            if e.is_bad_input() {
-                FuseError::Input(e.to_string())
-            } else {
-                FuseError::Io(e.to_string())
-            }
-        })?;
+        let file = PosesFile::read(path)?;
         PoseSet::from_parsed(store, path, file)
     }
 

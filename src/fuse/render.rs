@@ -6,7 +6,6 @@ use super::corrected::{CorrectedSurface, PoseXf};
 use super::layout::{level_for, FootprintIndex, OutputGrid, PlacedDsm};
 use super::{FuseError, FuseMethod};
 use crate::cache::ChunkCache;
-use crate::grid::Grid;
 use crate::store::{Store, StoreGrid};
 
 /// Everything a worker needs to render any tile of one output grid (shared by `&`).
@@ -126,12 +125,8 @@ impl<'a> TileRenderer<'a> {
                 out[r * w + c] = surface.height_at(x, y) as f32;
             }
         }
-        if let Some(message) = surface.grid_mut().take_error() {
-            return Err(FuseError::Read(format!(
-                "{}: DSM '{}': {message}",
-                self.store.root().display(),
-                self.store.dsms()[placed.index].id
-            )));
+        if let Some(error) = surface.grid_mut().take_chunk_error() {
+            return Err(self.store.chunk_error(placed.index, error).into());
         }
         Ok(())
     }

@@ -12,7 +12,8 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 use serde_json::{json, Value};
 
-use super::StoreError;
+use super::chunks::ChunkRecord;
+use super::{validate, StoreError};
 use crate::raster::{Crs, GeoTransform};
 
 /// Version of the attribute layout written by this code.
@@ -120,6 +121,10 @@ pub struct DsmMeta {
     /// Sample type of the source file, GDAL names: "Float32", "Int16", ...
     pub source_dtype: String,
     pub storage: StorageSettings,
+    /// Which chunks hold data, per level, so a missing chunk file is an error
+    /// and not no-data. Absent in stores written before the record existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub chunk_record: Option<ChunkRecord>,
 }
 
 impl DsmMeta {
@@ -258,6 +263,36 @@ pub fn read_dsm(group_dir: &Path) -> Result<DsmMeta, StoreError> {
     serde_json::from_value(ours).map_err(|e| StoreError::json(&group_dir.join("zarr.json"), e))
 }
 
+/// The metadata of DSM `id` of the store at `root`, validated: a safe id that
+/// matches its group, plausible numbers, consistent levels and chunk record,
+/// and the collection's CRS (`crs`, when the catalog has one).
+pub fn read_valid_dsm(root: &Path, id: &str, crs: Option<&Crs>) -> Result<DsmMeta, StoreError> {
+    let dir = root.join(id);
+    let file = dir.join("zarr.json");
+    validate::check_id(id).map_err(|m| StoreError::invalid(&root.join("zarr.json"), m))?;
+    let meta = read_dsm(&dir)?;
+    if meta.id != id {
+        return Err(StoreError::invalid(
+            &file,
+            format!("the group of DSM \"{id}\" says its id is \"{}\"", meta.id),
+        ));
+    }
+    validate::check_dsm(&meta).map_err(|m| StoreError::invalid(&file, m))?;
+    if let Some(crs) = crs {
+        if !crs.same_as(&meta.crs) {
+            return Err(StoreError::invalid(
+                &file,
+                format!(
+                    "CRS {} differs from the collection's {}",
+                    meta.crs.label(),
+                    crs.label()
+                ),
+            ));
+        }
+    }
+    Ok(meta)
+}
+
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
@@ -300,6 +335,7 @@ pub(crate) mod tests {
             },
             source_dtype: "Float32".into(),
             storage: StorageSettings::default(),
+            chunk_record: None,
         }
     }
 

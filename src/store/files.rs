@@ -2,18 +2,24 @@
 //! sources, committing a finished DSM group by rename, and repairing what a
 //! killed run left behind.
 //!
-//! A DSM is written as `<id>.tmp-<pid>/` and renamed to `<id>/` when complete;
-//! a replaced one is first moved aside to `<id>.old-<pid>/`. On the next run,
-//! temporaries of dead processes are deleted, a moved-aside group whose
-//! replacement never arrived is moved back, and a complete group missing from
-//! the root catalog (killed between rename and catalog update) is adopted.
+//! A DSM is written as `<id>.tmp-<pid>-<host>/` (no lock held: concurrent
+//! ingests write in parallel) and, under the store lock, renamed to `<id>/`
+//! and added to a freshly re-read root catalog; a replaced group is first
+//! moved aside to `<id>.old-<pid>/`. On the next run (under the lock),
+//! temporaries of dead processes of this host are deleted (another host's are
+//! left alone: its processes cannot be seen from here), a moved-aside group
+//! whose replacement never arrived is moved back, catalog temporaries
+//! (`.zarr.json.<pid>.tmp`, only ever written under the lock) are removed,
+//! and a complete group missing from the catalog is adopted.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::time::UNIX_EPOCH;
 
 use super::catalog::{self, RootAttrs, SourceInfo};
-use super::StoreError;
+use super::lock::LOCK_FILE;
+use super::{validate, StoreError};
+use crate::atomic::process_alive;
 
 pub const TMP_TAG: &str = ".tmp-";
 pub const OLD_TAG: &str = ".old-";
@@ -83,13 +89,7 @@ fn is_tiff_name(p: &Path) -> bool {
 
 /// An id must be usable as a Zarr node name and not look like our temporaries.
 fn check_id(id: &str, file: &Path) -> Result<(), String> {
-    let bad = id.is_empty()
-        || id.starts_with("__")
-        || id.starts_with('.')
-        || id == "zarr.json"
-        || id.contains(TMP_TAG)
-        || id.contains(OLD_TAG);
-    if bad {
+    if validate::check_id(id).is_err() {
         return Err(format!(
             "{}: file stem \"{id}\" cannot be a DSM id (empty, starts with '.' or \"__\", or contains \"{TMP_TAG}\"/\"{OLD_TAG}\"); rename the file",
             file.display()
@@ -128,8 +128,77 @@ pub fn dir_bytes(dir: &Path) -> u64 {
         .sum()
 }
 
-fn process_alive(pid: u32) -> bool {
-    pid == std::process::id() || Path::new(&format!("/proc/{pid}")).exists()
+/// This machine's name as used in temporary names (letters, digits, `-`, `.`).
+pub fn host_tag() -> String {
+    let raw = std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .or_else(|_| std::fs::read_to_string("/etc/hostname"))
+        .unwrap_or_default();
+    let tag: String = raw
+        .trim()
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' || c == '.' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    if tag.is_empty() {
+        "localhost".into()
+    } else {
+        tag
+    }
+}
+
+/// The folder a DSM is written to before its commit: `<id>.tmp-<pid>-<host>`.
+pub fn tmp_name(id: &str) -> String {
+    format!("{id}{TMP_TAG}{}-{}", std::process::id(), host_tag())
+}
+
+/// True when the temporary tagged `tag` (after `.tmp-`: `<pid>` or
+/// `<pid>-<host>`) may belong to a live process: one of this host that is
+/// alive, or any process of another host.
+fn writer_may_live(tag: &str) -> bool {
+    let (pid, host) = match tag.split_once('-') {
+        Some((pid, host)) => (pid, Some(host)),
+        None => (tag, None),
+    };
+    if host.is_some_and(|h| h != host_tag()) {
+        return true;
+    }
+    let pid: u32 = pid.parse().unwrap_or(0);
+    pid != std::process::id() && process_alive(pid)
+}
+
+/// Remove catalog temporaries (`.zarr.json.<pid>.tmp`) left in the store
+/// root by killed runs. Call only under the store lock: the catalog is only
+/// written by the lock's holder, so every such file is stale.
+fn remove_catalog_temporaries(root: &Path) -> Result<(), StoreError> {
+    let entries = std::fs::read_dir(root).map_err(|e| StoreError::io(root, e))?;
+    for entry in entries.filter_map(Result::ok) {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        if name.starts_with(".zarr.json.") && name.ends_with(".tmp") {
+            let path = entry.path();
+            std::fs::remove_file(&path).map_err(|e| StoreError::io_or_read_only(root, &path, e))?;
+            tracing::info!(path = %path.display(), "stale temporary removed");
+        }
+    }
+    Ok(())
+}
+
+/// True when `dir` holds nothing but what a store under creation (or a
+/// killed creation) holds: the lock file, catalog and DSM temporaries.
+pub fn only_leftovers(dir: &Path) -> bool {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return false;
+    };
+    entries.filter_map(Result::ok).all(|e| {
+        let name = e.file_name().to_string_lossy().into_owned();
+        name == LOCK_FILE
+            || (name.starts_with(".zarr.json.") && name.ends_with(".tmp"))
+            || name.contains(TMP_TAG)
+    })
 }
 
 /// Names of the folders directly inside `dir`, sorted.
@@ -144,14 +213,15 @@ fn subdirectories(dir: &Path) -> Result<Vec<String>, StoreError> {
     Ok(names)
 }
 
-/// Repair after a killed run (see the module doc); returns the updated catalog.
+/// Repair after a killed run (see the module doc); returns the updated
+/// catalog. Call under the store lock, with the catalog read under it.
 pub fn recover(root: &Path, mut attrs: RootAttrs) -> Result<RootAttrs, StoreError> {
     let mut changed = false;
+    remove_catalog_temporaries(root)?;
     for name in &subdirectories(root)? {
         let path = root.join(name);
-        if let Some((id, pid)) = name.split_once(TMP_TAG) {
-            let pid: u32 = pid.parse().unwrap_or(0);
-            if pid != std::process::id() && process_alive(pid) {
+        if let Some((id, tag)) = name.split_once(TMP_TAG) {
+            if writer_may_live(tag) {
                 continue; // another ingest is writing it
             }
             std::fs::remove_dir_all(&path).map_err(|e| StoreError::io(&path, e))?;
@@ -177,7 +247,10 @@ pub fn recover(root: &Path, mut attrs: RootAttrs) -> Result<RootAttrs, StoreErro
         if attrs.dsms.contains(name) {
             continue;
         }
-        let Ok(meta) = catalog::read_dsm(&root.join(name)) else {
+        if validate::check_id(name).is_err() {
+            continue;
+        }
+        let Ok(meta) = catalog::read_valid_dsm(root, name, attrs.crs.as_ref()) else {
             continue;
         };
         let crs_ok = attrs.crs.as_ref().is_none_or(|c| c.same_as(&meta.crs));
@@ -194,15 +267,30 @@ pub fn recover(root: &Path, mut attrs: RootAttrs) -> Result<RootAttrs, StoreErro
     Ok(attrs)
 }
 
-/// Move a finished group `tmp` to `<root>/<id>` (replacing an existing one) and
-/// then record it in the root catalog.
+/// Under the store lock: re-read the catalog (another run may have added
+/// DSMs since this one read it), check the DSM's CRS against it, move the
+/// finished group `tmp` to `<root>/<id>` (replacing an existing one) and list
+/// it. Returns the merged catalog.
 pub fn commit(
     root: &Path,
-    attrs: &mut RootAttrs,
     id: &str,
     tmp: &Path,
     crs: &crate::raster::Crs,
-) -> Result<(), StoreError> {
+) -> Result<RootAttrs, StoreError> {
+    let _lock = super::StoreLock::acquire(root)?;
+    let mut attrs = catalog::read_root(root)?;
+    if let Some(collection) = &attrs.crs {
+        if !collection.same_as(crs) {
+            return Err(StoreError::invalid(
+                tmp,
+                format!(
+                    "CRS {} differs from the collection's CRS {} (set by another run meanwhile)",
+                    crs.label(),
+                    collection.label()
+                ),
+            ));
+        }
+    }
     let live = root.join(id);
     if live.exists() {
         let old = root.join(format!("{id}{OLD_TAG}{}", std::process::id()));
@@ -216,7 +304,8 @@ pub fn commit(
         attrs.dsms.push(id.to_string());
     }
     attrs.crs.get_or_insert_with(|| crs.clone());
-    catalog::write_root(root, attrs)
+    catalog::write_root(root, &attrs)?;
+    Ok(attrs)
 }
 
 #[cfg(test)]
@@ -283,12 +372,13 @@ mod tests {
             crs: None,
             dsms: vec![],
         };
+        catalog::write_root(root, &attrs).unwrap();
         let crs = sample_meta("a").crs;
         for round in 0..2 {
             let tmp = root.join("a.tmp-7");
             std::fs::create_dir(&tmp).unwrap();
             std::fs::write(tmp.join("marker"), format!("{round}")).unwrap();
-            commit(root, &mut attrs, "a", &tmp, &crs).unwrap();
+            attrs = commit(root, "a", &tmp, &crs).unwrap();
             assert_eq!(
                 std::fs::read_to_string(root.join("a/marker")).unwrap(),
                 format!("{round}")
@@ -299,6 +389,7 @@ mod tests {
             .unwrap()
             .map(|e| e.unwrap().file_name())
             .collect();
+        let names: Vec<_> = names.into_iter().filter(|n| n != LOCK_FILE).collect();
         assert_eq!(names.len(), 2, "a/ and zarr.json only: {names:?}");
     }
 }

@@ -5,11 +5,15 @@
 //! (most recent first; the hot path of the nearest-neighbour search is a
 //! lookup in the last-used chunk) and fetches the others through the shared
 //! [`ChunkCache`], which decodes misses with zarrs. Pixels outside the raster
-//! are NaN; a chunk that fails to load reads as NaN and the error is kept for
-//! [`Grid::take_error`].
+//! are NaN. A chunk the DSM's [`ChunkRecord`] lists as empty is NaN without
+//! touching the disk; any other chunk must have a file. A chunk that is
+//! missing or fails to load reads as NaN and the error is kept for
+//! [`StoreGrid::take_chunk_error`] (and, as text, [`Grid::take_error`]).
 
+use std::path::PathBuf;
 use std::sync::Arc;
 
+use super::chunks::{chunk_grid, ChunkRecord};
 use super::{LevelArray, Store, StoreError};
 use crate::cache::{Chunk, ChunkCache, ChunkKey};
 use crate::grid::Grid;
@@ -17,6 +21,18 @@ use crate::raster::GeoTransform;
 
 /// How many chunks a grid keeps pinned.
 pub const PINNED_CHUNKS: usize = 8;
+
+/// A chunk of the store that could not be read: the store is damaged (a bad
+/// input, exit code 2), and `dsmstream check` says which DSM to re-ingest.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum ChunkReadError {
+    /// The record says the chunk holds data but its file is gone.
+    #[error("{}: missing chunk file (the DSM's chunk record says it holds data; run dsmstream check)", .file.display())]
+    Missing { file: PathBuf },
+    /// The file is there but does not decode to a chunk.
+    #[error("{}: unreadable chunk ({message})", .file.display())]
+    Unreadable { file: PathBuf, message: String },
+}
 
 struct Pinned {
     chunk_y: i64,
@@ -37,9 +53,12 @@ pub struct StoreGrid<'a> {
     geotransform: GeoTransform,
     /// Most recently used first.
     pinned: Vec<Pinned>,
-    error: Option<String>,
+    error: Option<ChunkReadError>,
     /// `<store>/<id>/<level>`, for errors that name the chunk's file.
-    array_dir: std::path::PathBuf,
+    array_dir: PathBuf,
+    /// Which chunks are empty (None: an old store, a missing file reads as no-data).
+    record: Option<Arc<ChunkRecord>>,
+    chunks_x: u64,
 }
 
 impl<'a> StoreGrid<'a> {
@@ -54,6 +73,7 @@ impl<'a> StoreGrid<'a> {
         let meta = &store.dsms()[dsm];
         let lm = meta.levels[level];
         let chunk = lm.chunk as i64;
+        let record = store.chunk_record(dsm).cloned();
         Ok(StoreGrid {
             cache,
             array,
@@ -69,6 +89,8 @@ impl<'a> StoreGrid<'a> {
             pinned: Vec::with_capacity(PINNED_CHUNKS),
             error: None,
             array_dir: store.root().join(&meta.id).join(level.to_string()),
+            record,
+            chunks_x: chunk_grid(&lm).0,
         })
     }
 
@@ -115,17 +137,37 @@ impl<'a> StoreGrid<'a> {
             chunk_x: chunk_x as u32,
         };
         let side = self.chunk as usize;
+        let (cy, cx) = (chunk_y as u64, chunk_x as u64);
+        let file = self.array_dir.join(format!("c/{chunk_y}/{chunk_x}"));
+        let record = self.record.as_deref();
+        let recorded_empty =
+            record.is_some_and(|r| r.is_empty(self.level as usize, self.chunks_x, cy, cx));
         let (array, cache) = (&self.array, self.cache);
         let loaded = self.cache.get_or_load(key, || {
+            if recorded_empty {
+                let data = vec![f32::NAN; side * side];
+                return Ok(Chunk {
+                    width: side,
+                    height: side,
+                    data: cache.chunk_data(data),
+                });
+            }
+            if record.is_some() && !file.is_file() {
+                return Err(ChunkReadError::Missing { file: file.clone() });
+            }
+            let unreadable = |message: String| ChunkReadError::Unreadable {
+                file: file.clone(),
+                message,
+            };
             let data: Vec<f32> = array
-                .retrieve_chunk(&[chunk_y as u64, chunk_x as u64])
-                .map_err(|e| e.to_string())?;
+                .retrieve_chunk(&[cy, cx])
+                .map_err(|e| unreadable(e.to_string()))?;
             if data.len() != side * side {
-                return Err(format!(
+                return Err(unreadable(format!(
                     "chunk has {} values, expected {}",
                     data.len(),
                     side * side
-                ));
+                )));
             }
             Ok(Chunk {
                 width: side,
@@ -133,10 +175,9 @@ impl<'a> StoreGrid<'a> {
                 data: cache.chunk_data(data),
             })
         });
-        loaded.unwrap_or_else(|message| {
+        loaded.unwrap_or_else(|error| {
             if self.error.is_none() {
-                let file = self.array_dir.join(format!("c/{chunk_y}/{chunk_x}"));
-                self.error = Some(format!("{}: unreadable chunk ({message})", file.display()));
+                self.error = Some(error);
             }
             // Pinned but not cached, so the failure is not retried per pixel.
             Arc::new(Chunk {
@@ -145,6 +186,12 @@ impl<'a> StoreGrid<'a> {
                 data: vec![f32::NAN; side * side].into(),
             })
         })
+    }
+
+    /// The first chunk that could not be read since the last call (its
+    /// pixels read as NaN).
+    pub fn take_chunk_error(&mut self) -> Option<ChunkReadError> {
+        self.error.take()
     }
 
     /// The `w x h` window with top-left pixel (col0, row0), row-major; NaN
@@ -211,6 +258,6 @@ impl Grid for StoreGrid<'_> {
     }
 
     fn take_error(&mut self) -> Option<String> {
-        self.error.take()
+        self.error.take().map(|e| e.to_string())
     }
 }

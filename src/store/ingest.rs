@@ -16,9 +16,13 @@ use std::time::Instant;
 use crossbeam::channel::bounded;
 use zarrs::filesystem::FilesystemStore;
 
-use super::catalog::{self, DsmMeta, RootAttrs, StorageSettings, STORE_VERSION};
-use super::files::{self, InputFile, TMP_TAG};
-use super::plan::{check_options, create_store, plan_all, read_existing, validate_all};
+use super::catalog::{self, DsmMeta, StorageSettings};
+use super::chunks::ChunkRecord;
+use super::files::{self, InputFile};
+use super::plan::{
+    check_options, create_store, empty_catalog, plan_all, read_existing, recover_locked,
+    undo_create, validate_all,
+};
 use super::pyramid::{level_shapes, PyramidWriter};
 use super::source::{open_geotiff, RowSource, SourceError, SourceOpener};
 use super::stats::HeightAccumulator;
@@ -84,8 +88,20 @@ pub enum IngestError {
 }
 
 impl IngestError {
+    /// The input files or the store are the problem (exit code 2): a bad file,
+    /// a damaged or read-only store.
     pub fn is_bad_input(&self) -> bool {
-        matches!(self, IngestError::BadInput(_))
+        match self {
+            IngestError::BadInput(_) => true,
+            IngestError::Store(e) | IngestError::Write { source: e, .. } => matches!(
+                e,
+                StoreError::ReadOnly { .. }
+                    | StoreError::Invalid { .. }
+                    | StoreError::NotAStore { .. }
+                    | StoreError::Json { .. }
+            ),
+            IngestError::Source(_) => false,
+        }
     }
 }
 
@@ -130,13 +146,9 @@ pub fn ingest_with(
 ) -> Result<IngestReport, IngestError> {
     check_options(&options.storage)?;
     let files = files::expand_inputs(inputs).map_err(IngestError::BadInput)?;
-    let mut attrs = match read_existing(store_path)? {
-        Some(attrs) => files::recover(store_path, attrs)?,
-        None => RootAttrs {
-            version: STORE_VERSION,
-            crs: None,
-            dsms: Vec::new(),
-        },
+    let attrs = match read_existing(store_path)? {
+        Some(_) => recover_locked(store_path)?,
+        None => empty_catalog(),
     };
     let plan = plan_all(store_path, &attrs, files, options.force)?;
     let (mut outcomes, todo) = (plan.skipped, plan.todo);
@@ -145,17 +157,12 @@ pub fn ingest_with(
     }
     validate_all(store_path, &attrs, &todo, open)?;
     if !todo.is_empty() {
-        create_store(store_path, &attrs)?;
-        let fs = FilesystemStore::new(store_path)
-            .map_err(|e| StoreError::zarr(store_path.display(), e))?;
-        let fs = Arc::new(fs);
-        for (file, action) in todo {
-            let outcome = ingest_one(
-                &fs, store_path, &mut attrs, file, action, options, progress, open,
-            )?;
-            progress.dsm_finished(&outcome);
-            outcomes.push(outcome);
+        let created = create_store(store_path)?;
+        let written = write_all(store_path, todo, options, progress, open, &mut outcomes);
+        if written.is_err() {
+            undo_create(store_path, created);
         }
+        written?;
     }
     Ok(IngestReport {
         store: store_path.to_path_buf(),
@@ -163,12 +170,30 @@ pub fn ingest_with(
     })
 }
 
+/// Write and commit every planned DSM, in order, appending their outcomes.
+fn write_all(
+    store_path: &Path,
+    todo: Vec<(InputFile, DsmAction)>,
+    options: &IngestOptions,
+    progress: &dyn IngestProgress,
+    open: &SourceOpener,
+    outcomes: &mut Vec<DsmOutcome>,
+) -> Result<(), IngestError> {
+    let fs =
+        FilesystemStore::new(store_path).map_err(|e| StoreError::zarr(store_path.display(), e))?;
+    let fs = Arc::new(fs);
+    for (file, action) in todo {
+        let outcome = ingest_one(&fs, store_path, file, action, options, progress, open)?;
+        progress.dsm_finished(&outcome);
+        outcomes.push(outcome);
+    }
+    Ok(())
+}
+
 /// Write one DSM, commit it (rename + catalog) and describe what was done.
-#[allow(clippy::too_many_arguments)]
 fn ingest_one(
     fs: &Arc<FilesystemStore>,
     store_path: &Path,
-    attrs: &mut RootAttrs,
     file: InputFile,
     action: DsmAction,
     options: &IngestOptions,
@@ -185,8 +210,16 @@ fn ingest_one(
         &options.storage,
         progress,
     )?;
-    let tmp = store_path.join(tmp_name(&file.id));
-    files::commit(store_path, attrs, &file.id, &tmp, &meta.crs)?;
+    let tmp = store_path.join(files::tmp_name(&file.id));
+    files::commit(store_path, &file.id, &tmp, &meta.crs).map_err(|e| match e {
+        StoreError::Invalid { message, .. } => {
+            IngestError::BadInput(format!("{}: {message}", file.path.display()))
+        }
+        other => IngestError::Write {
+            input: file.path.display().to_string(),
+            source: other,
+        },
+    })?;
     let outcome = DsmOutcome {
         stored_bytes: files::dir_bytes(&store_path.join(&file.id)),
         seconds: started.elapsed().as_secs_f64(),
@@ -194,10 +227,6 @@ fn ingest_one(
     };
     tracing::info!(dsm = %file.id, seconds = outcome.seconds, "dsm ingested");
     Ok(outcome)
-}
-
-fn tmp_name(id: &str) -> String {
-    format!("{id}{TMP_TAG}{}", std::process::id())
 }
 
 /// The outcome fields known from the metadata (bytes and seconds left at zero).
@@ -224,7 +253,7 @@ fn write_dsm(
     settings: &StorageSettings,
     progress: &dyn IngestProgress,
 ) -> Result<DsmMeta, IngestError> {
-    let tmp = store.join(tmp_name(&file.id));
+    let tmp = store.join(files::tmp_name(&file.id));
     if tmp.exists() {
         std::fs::remove_dir_all(&tmp).map_err(|e| StoreError::io(&tmp, e))?;
     }
@@ -256,7 +285,7 @@ fn write_levels(
     let mut pyramid = PyramidWriter::create(fs.clone(), tmp, &shapes, settings)?;
     progress.dsm_started(&file.id, h);
     let acc = stream_rows(source, settings.chunk, &mut pyramid, progress)?;
-    pyramid.finish()?;
+    let empty_runs = pyramid.finish()?;
     let Some(height_stats) = acc.height_stats() else {
         return Err(IngestError::BadInput(format!(
             "{}: no valid pixels (every pixel is no-data)",
@@ -277,7 +306,10 @@ fn write_levels(
         source: source_info,
         source_dtype: raster.dtype.clone(),
         storage: *settings,
+        chunk_record: Some(ChunkRecord { empty_runs }),
     };
+    super::validate::check_dsm(&meta)
+        .map_err(|m| IngestError::BadInput(format!("{}: {m}", file.path.display())))?;
     catalog::write_group_attributes(tmp, &meta.to_attributes())?;
     Ok(meta)
 }

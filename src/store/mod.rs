@@ -13,13 +13,17 @@
 //! writes the store from GeoTIFFs (or any [`source::RowSource`]).
 
 pub mod catalog;
+pub mod check;
+mod chunks;
 mod files;
 pub mod grid;
 pub mod ingest;
+pub mod lock;
 mod plan;
 mod pyramid;
 pub mod source;
 mod stats;
+pub mod validate;
 pub mod view;
 
 use std::collections::HashMap;
@@ -32,8 +36,10 @@ use zarrs::filesystem::FilesystemStore;
 pub use catalog::{
     Compression, DsmMeta, HeightStats, LevelMeta, SourceInfo, StorageSettings, STORE_VERSION,
 };
-pub use grid::StoreGrid;
+pub use chunks::ChunkRecord;
+pub use grid::{ChunkReadError, StoreGrid};
 pub use ingest::{ingest, IngestError, IngestOptions, IngestReport};
+pub use lock::StoreLock;
 pub use view::StorePyramid;
 
 use crate::raster::Crs;
@@ -55,6 +61,24 @@ pub enum StoreError {
     Json { path: String, message: String },
     #[error("{path}: {message}")]
     Zarr { path: String, message: String },
+    /// Metadata that fails validation (damaged, hand-edited or implausible).
+    #[error("{path}: {message}")]
+    Invalid { path: String, message: String },
+    /// A chunk of one DSM could not be read (missing or undecodable file).
+    #[error("{store}: DSM '{id}': {source}")]
+    Chunk {
+        store: String,
+        id: String,
+        #[source]
+        source: ChunkReadError,
+    },
+    /// The store cannot be written (permissions, read-only file system).
+    #[error("{path}: the store is read-only ({source}); writing needs write access to it")]
+    ReadOnly {
+        path: String,
+        #[source]
+        source: std::io::Error,
+    },
     #[error("{store}: no DSM number {dsm} level {level}")]
     NoSuchLevel {
         store: String,
@@ -78,6 +102,27 @@ impl StoreError {
         }
     }
 
+    /// An I/O error while writing into the store at `root`: permission and
+    /// read-only errors become [`StoreError::ReadOnly`], the rest [`StoreError::Io`].
+    pub(crate) fn io_or_read_only(root: &Path, path: &Path, source: std::io::Error) -> StoreError {
+        use std::io::ErrorKind::{PermissionDenied, ReadOnlyFilesystem};
+        if matches!(source.kind(), PermissionDenied | ReadOnlyFilesystem) {
+            StoreError::ReadOnly {
+                path: root.display().to_string(),
+                source,
+            }
+        } else {
+            StoreError::io(path, source)
+        }
+    }
+
+    pub(crate) fn invalid(path: &Path, message: impl Into<String>) -> StoreError {
+        StoreError::Invalid {
+            path: path.display().to_string(),
+            message: message.into(),
+        }
+    }
+
     pub(crate) fn zarr(path: impl std::fmt::Display, err: impl std::fmt::Display) -> StoreError {
         StoreError::Zarr {
             path: path.to_string(),
@@ -89,7 +134,13 @@ impl StoreError {
     pub fn is_bad_input(&self) -> bool {
         matches!(
             self,
-            StoreError::NotAStore { .. } | StoreError::Json { .. } | StoreError::Io { .. }
+            StoreError::NotAStore { .. }
+                | StoreError::Json { .. }
+                | StoreError::Io { .. }
+                | StoreError::Invalid { .. }
+                | StoreError::ReadOnly { .. }
+                | StoreError::Zarr { .. }
+                | StoreError::Chunk { .. }
         )
     }
 }
@@ -109,7 +160,19 @@ pub struct Store {
     fs: Arc<FilesystemStore>,
     crs: Option<Crs>,
     dsms: Vec<DsmMeta>,
+    /// Catalogued DSMs left out at open, with the reason (see [`Store::open`]).
+    skipped: Vec<SkippedDsm>,
+    /// Per DSM, which chunks were written (None: a store written before the record).
+    records: Vec<Option<Arc<ChunkRecord>>>,
     arrays: Mutex<HashMap<(usize, usize), Arc<LevelArray>>>,
+}
+
+/// A DSM listed in the catalog whose group could not be used.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SkippedDsm {
+    pub id: String,
+    /// One line naming the file and what is wrong with it.
+    pub reason: String,
 }
 
 impl std::fmt::Debug for Store {
@@ -122,7 +185,11 @@ impl std::fmt::Debug for Store {
 }
 
 impl Store {
-    /// Open an existing store: reads the root catalog and every DSM's metadata.
+    /// Open an existing store: reads the root catalog and every DSM's metadata,
+    /// validated as strictly as user input. A catalog that names a DSM twice or
+    /// names a path outside the store is refused; a DSM group whose metadata is
+    /// unreadable or implausible is reported (a warning naming it) and left out,
+    /// so one damaged DSM never makes the whole store unreadable.
     pub fn open(path: &Path) -> Result<Store, StoreError> {
         configure_zarrs();
         if !path.join("zarr.json").is_file() {
@@ -132,19 +199,58 @@ impl Store {
             });
         }
         let root_attrs = catalog::read_root(path)?;
-        let dsms = root_attrs
-            .dsms
+        validate::check_root(&root_attrs)
+            .map_err(|m| StoreError::invalid(&path.join("zarr.json"), m))?;
+        let (mut dsms, mut skipped) = (Vec::new(), Vec::new());
+        for id in &root_attrs.dsms {
+            match catalog::read_valid_dsm(path, id, root_attrs.crs.as_ref()) {
+                Ok(meta) => dsms.push(meta),
+                Err(e) => {
+                    tracing::warn!("{e}; DSM \"{id}\" left out (run dsmstream check)");
+                    skipped.push(SkippedDsm {
+                        id: id.clone(),
+                        reason: e.to_string(),
+                    });
+                }
+            }
+        }
+        let records = dsms
             .iter()
-            .map(|id| catalog::read_dsm(&path.join(id)))
-            .collect::<Result<Vec<_>, _>>()?;
+            .map(|m: &DsmMeta| m.chunk_record.clone().map(Arc::new))
+            .collect();
         let fs = FilesystemStore::new(path).map_err(|e| StoreError::zarr(path.display(), e))?;
         Ok(Store {
             root: path.to_path_buf(),
             fs: Arc::new(fs),
             crs: root_attrs.crs,
             dsms,
+            skipped,
+            records,
             arrays: Mutex::new(HashMap::new()),
         })
+    }
+
+    /// Catalogued DSMs left out at open because their group is damaged.
+    pub fn skipped(&self) -> &[SkippedDsm] {
+        &self.skipped
+    }
+
+    /// The error of a chunk of DSM number `dsm` that could not be read.
+    pub fn chunk_error(&self, dsm: usize, source: ChunkReadError) -> StoreError {
+        StoreError::Chunk {
+            store: self.root.display().to_string(),
+            id: self
+                .dsms
+                .get(dsm)
+                .map_or_else(String::new, |m| m.id.clone()),
+            source,
+        }
+    }
+
+    /// Which chunks of DSM number `dsm` were written (None for stores written
+    /// before the record existed: a missing chunk then reads as no-data).
+    pub fn chunk_record(&self, dsm: usize) -> Option<&Arc<ChunkRecord>> {
+        self.records.get(dsm).and_then(Option::as_ref)
     }
 
     pub fn root(&self) -> &Path {
@@ -183,6 +289,8 @@ impl Store {
         let node = format!("/{}/{}", meta.id, level);
         let array = Array::open(self.fs.clone(), &node)
             .map_err(|e| StoreError::zarr(self.root.join(&node[1..]).display(), e))?;
+        validate::check_array(&array, &meta.levels[level])
+            .map_err(|m| StoreError::invalid(&self.root.join(&node[1..]).join("zarr.json"), m))?;
         let array = Arc::new(array);
         arrays.insert((dsm, level), array.clone());
         Ok(array)

@@ -4,17 +4,20 @@
 
 use std::path::Path;
 
-use super::catalog::{self, RootAttrs, StorageSettings};
+use super::catalog::{self, RootAttrs, StorageSettings, STORE_VERSION};
 use super::files::{self, InputFile};
 use super::ingest::{outcome_of, DsmAction, DsmOutcome, IngestError};
+use super::lock::{StoreLock, LOCK_FILE};
 use super::source::SourceOpener;
 use super::source::SourceRaster;
+use super::{validate, StoreError};
 use crate::raster::Crs;
 
 pub(super) fn check_options(s: &StorageSettings) -> Result<(), IngestError> {
-    if !(16..=8192).contains(&s.chunk) {
+    let (lo, hi) = validate::CHUNK_RANGE_PX;
+    if !(lo..=hi).contains(&s.chunk) {
         return Err(IngestError::BadInput(format!(
-            "chunk size {} px is out of range (16 ..= 8192)",
+            "chunk size {} px is out of range ({lo} ..= {hi})",
             s.chunk
         )));
     }
@@ -22,7 +25,8 @@ pub(super) fn check_options(s: &StorageSettings) -> Result<(), IngestError> {
 }
 
 /// The catalog of an existing store, None when the path does not exist yet
-/// (or is an empty directory).
+/// (or is an empty directory, or holds only what another run creating the
+/// store right now has put there).
 pub(super) fn read_existing(store: &Path) -> Result<Option<RootAttrs>, IngestError> {
     if store.join("zarr.json").exists() {
         return catalog::read_root(store)
@@ -35,25 +39,89 @@ pub(super) fn read_existing(store: &Path) -> Result<Option<RootAttrs>, IngestErr
             "{}: cannot use as a store: {e}",
             store.display()
         ))),
-        Ok(mut entries) => match entries.next() {
-            None => Ok(None),
-            Some(_) => Err(IngestError::BadInput(format!(
-                "{}: exists, is not empty and is not a dsmstream store (no zarr.json)",
-                store.display()
-            ))),
-        },
+        Ok(_) if files::only_leftovers(store) => Ok(None),
+        Ok(_) => Err(IngestError::BadInput(format!(
+            "{}: exists, is not empty and is not a dsmstream store (no zarr.json)",
+            store.display()
+        ))),
     }
 }
 
-pub(super) fn create_store(store: &Path, attrs: &RootAttrs) -> Result<(), IngestError> {
-    let cannot = |e: &dyn std::fmt::Display| {
-        IngestError::BadInput(format!("{}: cannot write the store: {e}", store.display()))
-    };
-    std::fs::create_dir_all(store).map_err(|e| cannot(&e))?;
-    if !store.join("zarr.json").exists() {
-        catalog::write_root(store, attrs).map_err(|e| cannot(&e))?;
+/// An empty catalog.
+pub(super) fn empty_catalog() -> RootAttrs {
+    RootAttrs {
+        version: STORE_VERSION,
+        crs: None,
+        dsms: Vec::new(),
     }
-    Ok(())
+}
+
+/// Under the store lock: the catalog as it is now, after repairing what
+/// killed runs left behind. A read-only store is read without repair.
+pub(super) fn recover_locked(store: &Path) -> Result<RootAttrs, IngestError> {
+    let lock = match StoreLock::acquire(store) {
+        Ok(lock) => lock,
+        Err(StoreError::ReadOnly { .. }) => {
+            return Ok(read_existing(store)?.unwrap_or_else(empty_catalog))
+        }
+        Err(e) => return Err(e.into()),
+    };
+    let attrs = read_existing(store)?.unwrap_or_else(empty_catalog);
+    let attrs = files::recover(store, attrs)?;
+    drop(lock);
+    Ok(attrs)
+}
+
+/// What [`create_store`] made, to undo it when the run writes no DSM.
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct Created {
+    pub dir: bool,
+    pub catalog: bool,
+}
+
+/// Make the store folder and an empty catalog unless they exist (two runs
+/// creating one store both succeed: the catalog is written under the lock).
+/// Taking the lock is the write test: a read-only store fails here, before
+/// anything is written.
+pub(super) fn create_store(store: &Path) -> Result<Created, IngestError> {
+    let dir = !store.exists();
+    std::fs::create_dir_all(store)
+        .map_err(|e| IngestError::from(StoreError::io_or_read_only(store, store, e)))?;
+    let _lock = StoreLock::acquire(store)?;
+    let catalog = !store.join("zarr.json").exists();
+    if catalog {
+        catalog::write_root(store, &empty_catalog())?;
+    }
+    Ok(Created { dir, catalog })
+}
+
+/// Undo [`create_store`] after a failed run, if the catalog is still empty and
+/// no other run has started writing into the store.
+pub(super) fn undo_create(store: &Path, created: Created) {
+    if !created.catalog {
+        return;
+    }
+    let Ok(lock) = StoreLock::acquire(store) else {
+        return;
+    };
+    let empty = catalog::read_root(store).is_ok_and(|a| a.dsms.is_empty());
+    let others = std::fs::read_dir(store).map_or(true, |mut entries| {
+        entries.any(|e| {
+            e.map_or(true, |e| {
+                let name = e.file_name();
+                name != "zarr.json" && name != LOCK_FILE
+            })
+        })
+    });
+    if empty && !others {
+        let _ = std::fs::remove_file(store.join("zarr.json"));
+        drop(lock);
+        let _ = std::fs::remove_file(store.join(LOCK_FILE));
+        if created.dir {
+            let _ = std::fs::remove_dir(store);
+        }
+        tracing::info!(store = %store.display(), "empty store removed");
+    }
 }
 
 /// New, changed, unchanged, or a clash with a same-id DSM from another file.
@@ -66,7 +134,13 @@ fn plan_one(
     if !attrs.dsms.contains(&file.id) {
         return Ok(DsmAction::Ingested);
     }
-    let old = catalog::read_dsm(&store.join(&file.id))?;
+    let old = match catalog::read_valid_dsm(store, &file.id, attrs.crs.as_ref()) {
+        Ok(old) => old,
+        Err(e) => {
+            tracing::warn!("{e}; DSM \"{}\" is damaged and is ingested again", file.id);
+            return Ok(DsmAction::Replaced);
+        }
+    };
     if force {
         return Ok(DsmAction::Replaced);
     }
@@ -101,6 +175,12 @@ fn validate(
             raster.width, raster.height
         ));
     }
+    if raster.crs.epsg.is_none() && raster.crs.wkt.is_none() && raster.crs.geokeys.is_empty() {
+        return bad(
+            "no CRS (no GeoKeyDirectory): assign one first, e.g. gdal_edit.py -a_srs EPSG:326xx"
+                .into(),
+        );
+    }
     if raster.crs.is_geographic {
         return bad(format!(
             "geographic CRS {} (degrees) is not a metric frame; reproject to a projected CRS first, e.g. gdalwarp -t_srs EPSG:326xx",
@@ -112,6 +192,9 @@ fn validate(
             "geotransform {:?} is rotated, sheared or not north-up; only north-up rasters are supported (gdalwarp can resample it)",
             raster.geotransform.0
         ));
+    }
+    if let Err(msg) = validate::check_raster(raster.width, raster.height, &raster.geotransform) {
+        return bad(msg);
     }
     match collection {
         Some((crs, origin)) if !crs.same_as(&raster.crs) => bad(format!(
@@ -145,7 +228,7 @@ pub(super) fn plan_all(
     for file in files {
         match plan_one(store, attrs, &file, force)? {
             DsmAction::Skipped => {
-                let meta = catalog::read_dsm(&store.join(&file.id))?;
+                let meta = catalog::read_valid_dsm(store, &file.id, attrs.crs.as_ref())?;
                 let mut outcome = outcome_of(&file, DsmAction::Skipped, &meta);
                 outcome.stored_bytes = files::dir_bytes(&store.join(&file.id));
                 skipped.push(outcome);

@@ -9,6 +9,9 @@
 //! its partner. A chunk row that arrives whole is written from the caller's
 //! slice without a copy. Memory: the caller's rows plus, per level below, one
 //! chunk row and one averaged input block (about 1.5x level 0's chunk row in all).
+//! Chunks without a valid pixel have no file (Zarr's fill value); the writer
+//! records them ([`ChunkRecord`](super::ChunkRecord)) so a missing file can be
+//! told from an empty chunk.
 
 use std::sync::Arc;
 
@@ -17,6 +20,7 @@ use zarrs::array::{codec::ZstdCodec, data_type, ArrayBuilder};
 use zarrs::filesystem::FilesystemStore;
 
 use super::catalog::{Compression, LevelMeta, StorageSettings};
+use super::chunks::EmptyChunks;
 use super::{LevelArray, StoreError};
 
 /// Level shapes: level 0, then halved (rounding up) while the long side of the
@@ -87,6 +91,8 @@ struct LevelWriter {
     rows_written: u64,
     /// An input row (of the level above) waiting for its 2x2 partner.
     carry: Option<Vec<f32>>,
+    /// Chunks written without a valid pixel (Zarr stores no file for them).
+    empty: EmptyChunks,
 }
 
 impl LevelWriter {
@@ -97,17 +103,29 @@ impl LevelWriter {
         let n_rows = rows.len() / w;
         let cy = self.chunk_rows_written;
         let (array, dir) = (&self.array, &self.dir);
-        (0..w.div_ceil(c)).into_par_iter().try_for_each(|cx| {
-            let mut data = vec![f32::NAN; c * c];
-            let col0 = cx * c;
-            let cols = c.min(w - col0);
-            for r in 0..n_rows {
-                data[r * c..r * c + cols].copy_from_slice(&rows[r * w + col0..r * w + col0 + cols]);
-            }
-            array
-                .store_chunk(&[cy, cx as u64], data)
-                .map_err(|e| StoreError::zarr(dir.join(format!("c/{cy}/{cx}")).display(), e))
-        })?;
+        let chunks_x = w.div_ceil(c);
+        let empty: Vec<Option<u64>> = (0..chunks_x)
+            .into_par_iter()
+            .map(|cx| {
+                let mut data = vec![f32::NAN; c * c];
+                let col0 = cx * c;
+                let cols = c.min(w - col0);
+                for r in 0..n_rows {
+                    data[r * c..r * c + cols]
+                        .copy_from_slice(&rows[r * w + col0..r * w + col0 + cols]);
+                }
+                // Zarr leaves out chunks equal to the fill value, bit for bit.
+                let nan = f32::NAN.to_bits();
+                let is_empty = data.iter().all(|v| v.to_bits() == nan);
+                array
+                    .store_chunk(&[cy, cx as u64], data)
+                    .map_err(|e| StoreError::zarr(dir.join(format!("c/{cy}/{cx}")).display(), e))?;
+                Ok(is_empty.then_some(cy * chunks_x as u64 + cx as u64))
+            })
+            .collect::<Result<_, StoreError>>()?;
+        for index in empty.into_iter().flatten() {
+            self.empty.add(index);
+        }
         self.chunk_rows_written += 1;
         self.rows_written += n_rows as u64;
         Ok(())
@@ -242,6 +260,7 @@ impl PyramidWriter {
                 chunk_rows_written: 0,
                 rows_written: 0,
                 carry: None,
+                empty: EmptyChunks::default(),
             });
         }
         Ok(PyramidWriter { levels })
@@ -254,8 +273,9 @@ impl PyramidWriter {
     }
 
     /// Write the remaining partial chunk rows, top level first, and check that
-    /// every level received exactly its height.
-    pub fn finish(mut self) -> Result<(), StoreError> {
+    /// every level received exactly its height. Returns, per level, the runs
+    /// of empty chunks (see [`ChunkRecord`](super::ChunkRecord)).
+    pub fn finish(mut self) -> Result<Vec<Vec<[u64; 2]>>, StoreError> {
         for k in 0..self.levels.len() {
             let from_k = &mut self.levels[k..];
             if let Some(row) = from_k[0].carry.take() {
@@ -277,7 +297,11 @@ impl PyramidWriter {
                 ));
             }
         }
-        Ok(())
+        Ok(self
+            .levels
+            .into_iter()
+            .map(|l| l.empty.into_runs())
+            .collect())
     }
 }
 

@@ -481,6 +481,68 @@ fn store_from_raw_rasters_for_check_zarr() {
 }
 
 #[test]
+fn a_refused_input_leaves_no_store_at_a_fresh_path() {
+    let mut inputs = Inputs::new();
+    let nodata = inputs.add("nodata.tif", 30, 30, utm(26917), vec![f32::NAN; 900]);
+    let dir = tempfile::tempdir().unwrap();
+    for fresh in [
+        dir.path().join("new.zarr"),
+        dir.path().join("empty_dir.zarr"),
+    ] {
+        let existed = fresh.ends_with("empty_dir.zarr");
+        if existed {
+            std::fs::create_dir(&fresh).unwrap();
+        }
+        let err = run(&inputs, std::slice::from_ref(&nodata), &fresh, &options(16)).unwrap_err();
+        assert!(err.to_string().contains("no valid pixels"), "{err}");
+        if existed {
+            assert_eq!(
+                std::fs::read_dir(&fresh).unwrap().count(),
+                0,
+                "left files behind"
+            );
+        } else {
+            assert!(!fresh.exists(), "{} left behind", fresh.display());
+        }
+    }
+}
+
+#[test]
+fn ingest_records_empty_chunks_and_a_missing_chunk_reads_as_an_error() {
+    let mut inputs = Inputs::new();
+    let mut data = surface(48, 48, 3);
+    for r in 0..16 {
+        data[r * 48..r * 48 + 16].fill(f32::NAN); // chunk (0, 0) of level 0 empty
+    }
+    let a = inputs.add("a.tif", 48, 48, utm(26917), data);
+    let store_dir = tempfile::tempdir().unwrap();
+    let store_path = store_dir.path().join("c.zarr");
+    run(&inputs, &[a], &store_path, &options(16)).unwrap();
+    let store = Store::open(&store_path).unwrap();
+    let record = store.chunk_record(0).expect("a chunk record");
+    assert!(record.is_empty(0, 3, 0, 0));
+    assert!(!store_path.join("a/0/c/0/0").exists());
+    assert_eq!(record.empty_count(0), 1);
+    std::fs::remove_file(store_path.join("a/0/c/2/1")).unwrap();
+    let cache = ChunkCache::new(1 << 20);
+    let mut grid = StoreGrid::new(&store, &cache, 0, 0).unwrap();
+    assert!(grid.get(3, 3).is_nan());
+    assert!(
+        grid.take_chunk_error().is_none(),
+        "an empty chunk is no error"
+    );
+    assert!(grid.get(20, 40).is_nan());
+    let err = grid
+        .take_chunk_error()
+        .expect("the missing chunk is an error");
+    assert!(
+        matches!(err, super::ChunkReadError::Missing { .. }),
+        "{err}"
+    );
+    assert!(err.to_string().contains("a/0/c/2/1"), "{err}");
+}
+
+#[test]
 fn store_types_cross_threads() {
     fn shared<T: Send + Sync>() {}
     fn owned<T: Send>() {}

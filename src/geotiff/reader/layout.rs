@@ -152,11 +152,22 @@ fn ascii_tag<R: Read + Seek>(
     Ok(Some(String::from_utf8_lossy(&buf).into_owned()))
 }
 
+/// True when tag `t` is stored with TIFF type UNDEFINED (7): opaque bytes,
+/// not numbers. GDAL (libgeotiff) ignores geo tags of that type; so do we.
+fn is_undefined_type<R: Read + Seek>(d: &mut Decoder<R>, t: u16) -> bool {
+    d.image_ifd()
+        .find_entry(Tag::Unknown(t))
+        .is_some_and(|e| e.field_type() == tiff::tags::Type::UNDEFINED)
+}
+
 fn f64_tag<R: Read + Seek>(
     path: &Path,
     d: &mut Decoder<R>,
     t: u16,
 ) -> Result<Option<Vec<f64>>, GeoTiffError> {
+    if is_undefined_type(d, t) {
+        return Ok(None);
+    }
     let Some(v) = d
         .find_tag(Tag::Unknown(t))
         .map_err(|e| tiff_error(path, e))?
@@ -340,10 +351,13 @@ fn read_georeferencing<R: Read + Seek>(
     let scale = f64_tag(path, d, tag::MODEL_PIXEL_SCALE)?;
     let tiepoint = f64_tag(path, d, tag::MODEL_TIEPOINT)?;
     let transformation = f64_tag(path, d, tag::MODEL_TRANSFORMATION)?;
-    let directory = d
-        .find_tag_unsigned_vec::<u16>(Tag::Unknown(tag::GEO_KEY_DIRECTORY))
-        .map_err(|e| tiff_error(path, e))?
-        .unwrap_or_default();
+    let directory = if is_undefined_type(d, tag::GEO_KEY_DIRECTORY) {
+        Vec::new()
+    } else {
+        d.find_tag_unsigned_vec::<u16>(Tag::Unknown(tag::GEO_KEY_DIRECTORY))
+            .map_err(|e| tiff_error(path, e))?
+            .unwrap_or_default()
+    };
     let doubles = f64_tag(path, d, tag::GEO_DOUBLE_PARAMS)?.unwrap_or_default();
     let ascii = ascii_tag(path, d, tag::GEO_ASCII_PARAMS)?;
     let keys = if directory.is_empty() {
