@@ -77,7 +77,8 @@ fn mst_summary_counts_tree_edges_not_all_pairs() {
     let r = reference();
     // 4 DSMs: a spanning tree has 3 edges, the 2 x 2 grid has 6 registered pairs
     assert!(
-        r.stdout.contains("aligned 4 DSMs: 3 tree edges of 6 registered pairs,"),
+        r.stdout
+            .contains("aligned 4 DSMs: 3 tree edges of 6 registered pairs,"),
         "{}",
         r.stdout
     );
@@ -91,7 +92,10 @@ fn resume_with_a_journal_of_another_collection_is_refused() {
     let run = align(&r.store, &out, &["--graph", "mst", "--resume"]);
     let err = stderr(&run);
     assert_eq!(run.status.code(), Some(2), "{err}");
-    let named = format!("{}, line 2: no DSM 'elsewhere_0", journal_of(&out).display());
+    let named = format!(
+        "{}, line 2: no DSM 'elsewhere_0",
+        journal_of(&out).display()
+    );
     assert!(err.contains(&named), "{err}");
     assert!(!err.contains("panicked"), "{err}");
     assert!(!out.exists());

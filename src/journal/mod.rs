@@ -189,10 +189,7 @@ type Journaled = (String, Vec<(usize, EdgeRecord)>);
 /// numbers (1 = header), and their text; None when the file is missing or
 /// empty. Reading stops at the first line that does not parse (a torn write:
 /// it and everything after it are redone).
-fn read_records(
-    path: &Path,
-    settings: &str,
-) -> Result<Option<Journaled>, JournalError> {
+fn read_records(path: &Path, settings: &str) -> Result<Option<Journaled>, JournalError> {
     let io = |source| JournalError::Io {
         path: path.display().to_string(),
         source,
