@@ -5,11 +5,15 @@
 mod util;
 
 mod align;
+mod align_journal;
 mod demo;
+mod faults;
 mod fuse_eval;
+mod fuzz;
 mod ingest;
 mod pair_real;
 mod pair_recovery;
 mod readme;
 mod resume;
+mod store_reliability;
 mod ttp_collection;
