@@ -13,8 +13,8 @@ use clap::{Parser, Subcommand, ValueEnum};
 use dsmstream::raster::GeoTransform;
 use dsmstream::synth::{
     cut_collection, epsg_crs, render_window, tiles::rigid_about, write_raster, write_tile_set,
-    write_truth_grid, CutParams, Layout, PixelEffects, Surface, SurfaceParams, SynthError,
-    TileSetParams, TileSpec, Truth,
+    write_truth_grid, CutParams, Layout, PixelEffects, Rendering, Surface, SurfaceParams,
+    SynthError, TileSetParams, TileSpec, Truth,
 };
 
 #[derive(Parser)]
@@ -314,6 +314,8 @@ fn big(a: BigArgs) -> Result<(), SynthError> {
         outlier_fraction: a.outliers,
         void_fraction: a.voids,
         changes: false,
+        rendering: Rendering::Centre,
+        points_per_px: 0.0,
     };
     let bar = indicatif::ProgressBar::new(a.size.div_ceil(a.tile as u64));
     let started = std::time::Instant::now();

@@ -32,6 +32,8 @@ fn noisy(sigma_m: f64) -> PixelEffects {
         outlier_fraction: 0.02,
         void_fraction: 0.03,
         changes: true,
+        rendering: crate::synth::Rendering::Centre,
+        points_per_px: 0.0,
     }
 }
 

@@ -30,6 +30,10 @@ pub struct SurfaceParams {
     /// Fraction of 512 m cells holding a lake (no-data polygon).
     pub lake_cells: f64,
     pub objects: ObjectParams,
+    /// Lakes are flat water (the terrain height at the lake's centre, minus
+    /// 1 m) instead of no-data.
+    #[serde(default)]
+    pub flat_water: bool,
 }
 
 impl Default for SurfaceParams {
@@ -40,6 +44,7 @@ impl Default for SurfaceParams {
             relief_scale: 1.0,
             lake_cells: 0.2,
             objects: ObjectParams::default(),
+            flat_water: false,
         }
     }
 }
@@ -51,6 +56,8 @@ struct Lake {
     cy: f64,
     r_max: f64,
     vertices: Vec<(f64, f64)>,
+    /// Water level when lakes are flat water.
+    level_m: f64,
 }
 
 impl Lake {
@@ -145,6 +152,7 @@ impl Surface {
             cy,
             r_max,
             vertices,
+            level_m: self.terrain(cx, cy) - 1.0,
         })
     }
 
@@ -189,8 +197,12 @@ impl Sampler<'_> {
     }
 
     fn height(&mut self, x: f64, y: f64, epoch: Option<u64>) -> f64 {
-        if self.on_lake(x, y) {
-            return f64::NAN;
+        if let Some(level_m) = self.on_lake(x, y) {
+            return if self.surface.params.flat_water {
+                level_m
+            } else {
+                f64::NAN
+            };
         }
         let s = self.surface;
         let ground = s.terrain(x, y);
@@ -217,7 +229,8 @@ impl Sampler<'_> {
         h
     }
 
-    fn on_lake(&mut self, x: f64, y: f64) -> bool {
+    /// The water level of the lake at (x, y), if any.
+    fn on_lake(&mut self, x: f64, y: f64) -> Option<f64> {
         let (i, j) = (
             (x / LAKE_CELL_M).floor() as i64,
             (y / LAKE_CELL_M).floor() as i64,
@@ -229,7 +242,9 @@ impl Sampler<'_> {
         let Some((_, _, lake)) = &self.lakes[slot] else {
             unreachable!("slot just filled")
         };
-        lake.as_ref().is_some_and(|l| l.contains(x, y))
+        lake.as_ref()
+            .filter(|l| l.contains(x, y))
+            .map(|l| l.level_m)
     }
 
     fn cell(&mut self, i: i64, j: i64) -> &Cell {
