@@ -200,3 +200,134 @@ fn finds_the_demcompare_srtm_shift() {
     assert!(s.z.abs() < 5.0, "no vertical offset in this pair: {est:?}");
     assert!(est.ambiguity < 0.9, "{est:?}");
 }
+
+/// One row of the experiment: a generated pair and the search radius.
+struct Case {
+    name: &'static str,
+    args: Vec<&'static str>,
+    max_displacement_m: f64,
+}
+
+/// The experiment behind docs/pending/robust.md: error of the coarse search
+/// against truth over renderings, seeds and scenes (ignored: a few minutes).
+/// `ROBUST_CASES=2,3` runs only those cases (0-based).
+#[test]
+#[ignore]
+fn experiment_coarse_error_by_rendering() {
+    let renders = ["centre", "lidar-max", "lidar-mean", "tin", "idw", "smooth"];
+    // A 25 % overlap (64 m of a 256 m tile) with up to 20 m of horizontal offset.
+    let narrow = vec![
+        "--size",
+        "512",
+        "--gsd",
+        "0.5",
+        "--overlap",
+        "0.25",
+        "--max-shift-m",
+        "20",
+        "--max-shift-z-m",
+        "2",
+        "--dz-offset",
+        "150",
+        "--max-rot-deg",
+        "0.01",
+    ];
+    // Nearly flat: gentle terrain, few buildings and trees.
+    let mut flat = HALF_M.to_vec();
+    flat.extend_from_slice(&["--relief", "0.2", "--buildings", "0.05", "--trees", "0.05"]);
+    let only = std::env::var("ROBUST_CASES").unwrap_or_default();
+    let cases = [
+        Case {
+            name: "30 m, 1 km / 300 m",
+            args: THIRTY_M.to_vec(),
+            max_displacement_m: 1000.0,
+        },
+        Case {
+            name: "0.5 m, 50 m / 150 m",
+            args: HALF_M.to_vec(),
+            max_displacement_m: 50.0,
+        },
+        Case {
+            name: "0.5 m, 25 % overlap",
+            args: narrow,
+            max_displacement_m: 30.0,
+        },
+        Case {
+            name: "0.5 m, near-flat field",
+            args: flat,
+            max_displacement_m: 50.0,
+        },
+    ];
+    println!("| case | rendering | seed | truth dx dy dz (m) | error dx dy dz (m) | ambiguity | level | ms |");
+    println!("|---|---|---|---|---|---|---|---|");
+    for (k, case) in cases.iter().enumerate() {
+        if !only.is_empty() && !only.split(',').any(|c| c == k.to_string()) {
+            continue;
+        }
+        for render in renders {
+            for seed in ["1", "2", "3"] {
+                let dir = tempfile::tempdir().unwrap();
+                let mut args = case.args.clone();
+                args.extend_from_slice(&["--seed", seed, "--render", render]);
+                let (store, truth) = generated_pair(dir.path(), &args);
+                let config = CoarseConfig {
+                    max_displacement_m: case.max_displacement_m,
+                    ..Default::default()
+                };
+                let (est, ms) = search(&store, "tile_00", "tile_01", &config);
+                let e = error_m(&est, truth);
+                println!(
+                    "| {} | {render} | {seed} | {:.1} {:.1} {:.1} | {:.2} {:.2} {:.2} | {:.2} | {} | {ms:.0} |",
+                    case.name, truth[0], truth[1], truth[2], e[0], e[1], e[2], est.ambiguity, est.level
+                );
+            }
+        }
+    }
+}
+
+/// Time of the search on a 1024 x 1024 px pair at 0.5 m (50 m radius), cold
+/// (chunks decoded on first use) and warm (chunks in the cache, as after
+/// ICP's own reads). Ignored: a timing, not a check.
+#[test]
+#[ignore]
+fn experiment_coarse_time_1024() {
+    let dir = tempfile::tempdir().unwrap();
+    let (store, truth) = generated_pair(
+        dir.path(),
+        &[
+            "--size",
+            "1024",
+            "--gsd",
+            "0.5",
+            "--overlap",
+            "0.9",
+            "--max-shift-m",
+            "35",
+            "--dz-offset",
+            "150",
+            "--render",
+            "lidar-max",
+            "--seed",
+            "4",
+        ],
+    );
+    let config = CoarseConfig {
+        max_displacement_m: 50.0,
+        ..Default::default()
+    };
+    let s = Store::open(&store).unwrap();
+    let cache = ChunkCache::new(256 << 20);
+    let r = StorePyramid::new(&s, &cache, 0);
+    let m = StorePyramid::new(&s, &cache, 1);
+    for run in ["cold", "warm", "warm"] {
+        let started = Instant::now();
+        let est = estimate(&r, &m, &config).unwrap();
+        let ms = started.elapsed().as_secs_f64() * 1e3;
+        println!(
+            "{run}: {ms:.0} ms, error {:?} m, level {}, trials {}",
+            error_m(&est, truth),
+            est.level,
+            est.trials
+        );
+    }
+}

@@ -45,7 +45,8 @@ pub struct CoarseConfig {
     pub max_displacement_m: f64,
     /// Local minima of the scan refined and reported.
     pub candidates: usize,
-    /// Moving samples per level (a regular lattice over the overlap).
+    /// Moving samples per level (a regular lattice over the overlap); the
+    /// global scan takes fewer (not below 1024) when it has many shifts.
     pub samples: usize,
     /// The search level's overlap box must span at least this many pixels.
     pub min_side_px: f64,
@@ -62,7 +63,7 @@ impl Default for CoarseConfig {
             max_displacement_m: 100.0,
             candidates: 4,
             samples: 4096,
-            min_side_px: 48.0,
+            min_side_px: 32.0,
             finest_level: 0,
             refine_window_px: 768.0,
         }
@@ -141,41 +142,8 @@ pub fn estimate<R: Pyramid, M: Pyramid>(
     let level = search_level(&pixel_m, &side_px, d_m, config.min_side_px);
     let finest = config.finest_level.min(level);
 
-    // Global scan on `level`.
-    let mut mov = moving.open_level(level).map_err(read)?;
-    let samples = sample_box(&mut mov, &reach, config.samples);
-    if let Some(e) = mov.take_error() {
-        return Err(read(e));
-    }
-    if samples.len() < 16 {
-        return Err(CoarseError::EmptyOverlap);
-    }
-    let mut ref_level = reference.open_level(level).map_err(read)?;
-    let gt = ref_level.geotransform();
-    let step = [gt.gsd_x(), gt.gsd_y()];
-    let margin = d_m + 2.0 * step[0].max(step[1]);
-    let mut ref_win = window(&mut ref_level, &expand(&reach, margin));
-    if let Some(e) = ref_level.take_error() {
-        return Err(read(e));
-    }
-    let radius_px = (d_m / step[0].min(step[1])).ceil() as i64;
-    let mut scratch = Vec::new();
-    let at_zero = cost::score_shift(&mut ref_win, &samples, [0.0, 0.0], 0, &mut scratch);
-    let min_support = 16.max(at_zero.support / 4).min(samples.len() / 2);
-    let trials = scan(&mut ref_win, &samples, step, radius_px, min_support);
-    let mut n_trials = trials.len();
-    let peaks = minima(&trials, radius_px, 2, config.candidates.max(1));
-    if peaks.is_empty() {
-        return Err(CoarseError::NoMatch(d_m));
-    }
-    tracing::debug!(
-        level,
-        radius_px,
-        samples = samples.len(),
-        peaks = peaks.len(),
-        "coarse scan done"
-    );
-
+    let (peaks, scanned) = global_scan(reference, moving, level, &reach, config)?;
+    let mut n_trials = scanned;
     // Refine every candidate down to `finest`.
     let mut refined = Vec::with_capacity(peaks.len());
     for peak in peaks {
@@ -185,22 +153,7 @@ pub fn estimate<R: Pyramid, M: Pyramid>(
         n_trials += n;
         refined.push(t);
     }
-    refined.sort_by(|a, b| a.score.cost_m.total_cmp(&b.score.cost_m));
-    let final_step = pixel_m[finest];
-    let mut candidates: Vec<Candidate> = Vec::new();
-    for t in refined.iter().filter(|t| t.score.cost_m.is_finite()) {
-        let duplicate = candidates.iter().any(|c| {
-            (c.shift_m[0] - t.shift_xy_m[0]).abs() < 1.5 * final_step
-                && (c.shift_m[1] - t.shift_xy_m[1]).abs() < 1.5 * final_step
-        });
-        if !duplicate {
-            candidates.push(Candidate {
-                shift_m: [t.shift_xy_m[0], t.shift_xy_m[1], t.score.dz_m],
-                cost_m: t.score.cost_m,
-                support: t.score.support,
-            });
-        }
-    }
+    let candidates = rank(refined, pixel_m[finest]);
     let best = *candidates.first().ok_or(CoarseError::NoMatch(d_m))?;
     let ambiguity = match candidates.get(1) {
         Some(second) if second.cost_m > 0.0 => best.cost_m / second.cost_m,
@@ -216,6 +169,79 @@ pub fn estimate<R: Pyramid, M: Pyramid>(
         trials: n_trials,
     })
 }
+
+/// Refined trials ranked by cost, without duplicates (two within 1.5 steps of
+/// the finest level are one candidate) or trials that lost their support.
+fn rank(mut refined: Vec<Trial>, final_step: f64) -> Vec<Candidate> {
+    refined.sort_by(|a, b| a.score.cost_m.total_cmp(&b.score.cost_m));
+    let mut candidates: Vec<Candidate> = Vec::new();
+    for t in refined.iter().filter(|t| t.score.cost_m.is_finite()) {
+        let duplicate = candidates.iter().any(|c| {
+            (c.shift_m[0] - t.shift_xy_m[0]).abs() < 1.5 * final_step
+                && (c.shift_m[1] - t.shift_xy_m[1]).abs() < 1.5 * final_step
+        });
+        if !duplicate {
+            candidates.push(Candidate {
+                shift_m: [t.shift_xy_m[0], t.shift_xy_m[1], t.score.dz_m],
+                cost_m: t.score.cost_m,
+                support: t.score.support,
+            });
+        }
+    }
+    candidates
+}
+
+/// The exhaustive scan on `level` over the moving samples of `reach`: the
+/// distinct minima of the cost map, best first, and the number of shifts scored.
+fn global_scan<R: Pyramid, M: Pyramid>(
+    reference: &R,
+    moving: &M,
+    level: usize,
+    reach: &[f64; 4],
+    config: &CoarseConfig,
+) -> Result<(Vec<Trial>, usize), CoarseError> {
+    let read = CoarseError::Read;
+    let d_m = config.max_displacement_m;
+    let mut ref_level = reference.open_level(level).map_err(read)?;
+    let gt = ref_level.geotransform();
+    let step = [gt.gsd_x(), gt.gsd_y()];
+    let radius_px = (d_m / step[0].min(step[1])).ceil() as i64;
+    // Bound the work: about SCAN_LOOKUPS height look-ups in all.
+    let shifts = ((2 * radius_px + 1) * (2 * radius_px + 1)) as usize;
+    let target = (SCAN_LOOKUPS / shifts).clamp(1024, config.samples.max(1024));
+    let mut mov = moving.open_level(level).map_err(read)?;
+    let samples = sample_box(&mut mov, reach, target);
+    if let Some(e) = mov.take_error() {
+        return Err(read(e));
+    }
+    if samples.len() < 16 {
+        return Err(CoarseError::EmptyOverlap);
+    }
+    let margin = d_m + 2.0 * step[0].max(step[1]);
+    let mut ref_win = window(&mut ref_level, &expand(reach, margin));
+    if let Some(e) = ref_level.take_error() {
+        return Err(read(e));
+    }
+    let mut scratch = Vec::new();
+    let at_zero = cost::score_shift(&mut ref_win, &samples, [0.0, 0.0], 0, &mut scratch);
+    let min_support = 16.max(at_zero.support / 4).min(samples.len() / 2);
+    let trials = scan(&mut ref_win, &samples, step, radius_px, min_support);
+    let peaks = minima(&trials, radius_px, 2, config.candidates.max(1));
+    if peaks.is_empty() {
+        return Err(CoarseError::NoMatch(d_m));
+    }
+    tracing::debug!(
+        level,
+        radius_px,
+        samples = samples.len(),
+        peaks = peaks.len(),
+        "coarse scan done"
+    );
+    Ok((peaks, trials.len()))
+}
+
+/// Height look-ups of the global scan (shifts x samples), about 0.1 s.
+const SCAN_LOOKUPS: usize = 4_000_000;
 
 /// Refines one scan minimum from `level - 1` down to `finest`; returns the
 /// refined trial and the number of shifts scored.
