@@ -330,6 +330,39 @@ mod tests {
         assert!(tall > 0.1 && tall < 0.6, "object fraction {tall}");
     }
 
+    /// With `flat_water`, lakes are one level each instead of no-data.
+    #[test]
+    fn flat_water_lakes_are_level() {
+        let nan_lakes = Surface::new(SurfaceParams {
+            lake_cells: 1.0,
+            ..params(6)
+        });
+        let flat = Surface::new(SurfaceParams {
+            lake_cells: 1.0,
+            flat_water: true,
+            ..params(6)
+        });
+        let mut levels = Vec::new();
+        for k in 0..40_000 {
+            let (x, y) = (
+                500_000.0 + (k % 200) as f64 * 10.0,
+                4_800_000.0 - (k / 200) as f64 * 10.0,
+            );
+            if nan_lakes.true_height(x, y).is_nan() {
+                levels.push(flat.true_height(x, y));
+            } else {
+                assert_eq!(nan_lakes.true_height(x, y), flat.true_height(x, y));
+            }
+        }
+        assert!(levels.len() > 100, "some lake in view ({})", levels.len());
+        assert!(levels.iter().all(|h| h.is_finite()));
+        let mut distinct = levels.clone();
+        distinct.sort_by(f64::total_cmp);
+        distinct.dedup();
+        // 2 km x 2 km hold at most 25 lake cells, one level each.
+        assert!(distinct.len() <= 25, "one level per lake: {distinct:?}");
+    }
+
     #[test]
     fn changed_buildings_differ_between_epochs_only() {
         let s = Surface::new(params(5));
