@@ -49,6 +49,7 @@ pub mod align;
 pub mod atomic;
 pub mod averaging;
 pub mod cache;
+pub mod coarse;
 pub mod error;
 pub mod eval;
 pub mod fit;

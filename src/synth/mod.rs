@@ -7,12 +7,14 @@
 //!
 //! Parts: `crate::rng` (SplitMix64 and coordinate hashes) → `objects` (per-cell
 //! buildings and trees) → `surface` (the height function) → `tiles` (layout,
-//! perturbation, rendering) → `output` (COGs and truth.json); `cut` (a real
+//! perturbation, pixel-centre rendering) and `render` (gridding from scattered
+//! points: lidar max/mean, IDW, TIN, smoothed) → `output` (COGs and truth.json); `cut` (a real
 //! GeoTIFF through the same frames into COGs and truth.json).
 
 pub mod cut;
 pub mod objects;
 pub mod output;
+pub mod render;
 pub mod score;
 pub mod surface;
 pub mod tiles;
@@ -23,6 +25,7 @@ pub use cut::{cut_collection, CutParams, CutRecord, CutReport};
 pub use output::{
     epsg_crs, write_raster, write_tile_set, write_truth, write_truth_grid, Truth, TruthTile,
 };
+pub use render::Rendering;
 pub use score::{PairwiseError, PerDsmError};
 pub use surface::{Sampler, Surface, SurfaceParams};
 pub use tiles::{

@@ -30,6 +30,10 @@ pub struct SurfaceParams {
     /// Fraction of 512 m cells holding a lake (no-data polygon).
     pub lake_cells: f64,
     pub objects: ObjectParams,
+    /// Lakes are flat water (the terrain height at the lake's centre, minus
+    /// 1 m) instead of no-data.
+    #[serde(default)]
+    pub flat_water: bool,
 }
 
 impl Default for SurfaceParams {
@@ -40,6 +44,7 @@ impl Default for SurfaceParams {
             relief_scale: 1.0,
             lake_cells: 0.2,
             objects: ObjectParams::default(),
+            flat_water: false,
         }
     }
 }
@@ -51,6 +56,8 @@ struct Lake {
     cy: f64,
     r_max: f64,
     vertices: Vec<(f64, f64)>,
+    /// Water level when lakes are flat water.
+    level_m: f64,
 }
 
 impl Lake {
@@ -145,6 +152,7 @@ impl Surface {
             cy,
             r_max,
             vertices,
+            level_m: self.terrain(cx, cy) - 1.0,
         })
     }
 
@@ -189,8 +197,12 @@ impl Sampler<'_> {
     }
 
     fn height(&mut self, x: f64, y: f64, epoch: Option<u64>) -> f64 {
-        if self.on_lake(x, y) {
-            return f64::NAN;
+        if let Some(level_m) = self.on_lake(x, y) {
+            return if self.surface.params.flat_water {
+                level_m
+            } else {
+                f64::NAN
+            };
         }
         let s = self.surface;
         let ground = s.terrain(x, y);
@@ -217,7 +229,8 @@ impl Sampler<'_> {
         h
     }
 
-    fn on_lake(&mut self, x: f64, y: f64) -> bool {
+    /// The water level of the lake at (x, y), if any.
+    fn on_lake(&mut self, x: f64, y: f64) -> Option<f64> {
         let (i, j) = (
             (x / LAKE_CELL_M).floor() as i64,
             (y / LAKE_CELL_M).floor() as i64,
@@ -229,7 +242,9 @@ impl Sampler<'_> {
         let Some((_, _, lake)) = &self.lakes[slot] else {
             unreachable!("slot just filled")
         };
-        lake.as_ref().is_some_and(|l| l.contains(x, y))
+        lake.as_ref()
+            .filter(|l| l.contains(x, y))
+            .map(|l| l.level_m)
     }
 
     fn cell(&mut self, i: i64, j: i64) -> &Cell {
@@ -313,6 +328,39 @@ mod tests {
         );
         assert!(lake > 0.002 && lake < 0.15, "lake fraction {lake}");
         assert!(tall > 0.1 && tall < 0.6, "object fraction {tall}");
+    }
+
+    /// With `flat_water`, lakes are one level each instead of no-data.
+    #[test]
+    fn flat_water_lakes_are_level() {
+        let nan_lakes = Surface::new(SurfaceParams {
+            lake_cells: 1.0,
+            ..params(6)
+        });
+        let flat = Surface::new(SurfaceParams {
+            lake_cells: 1.0,
+            flat_water: true,
+            ..params(6)
+        });
+        let mut levels = Vec::new();
+        for k in 0..40_000 {
+            let (x, y) = (
+                500_000.0 + (k % 200) as f64 * 10.0,
+                4_800_000.0 - (k / 200) as f64 * 10.0,
+            );
+            if nan_lakes.true_height(x, y).is_nan() {
+                levels.push(flat.true_height(x, y));
+            } else {
+                assert_eq!(nan_lakes.true_height(x, y), flat.true_height(x, y));
+            }
+        }
+        assert!(levels.len() > 100, "some lake in view ({})", levels.len());
+        assert!(levels.iter().all(|h| h.is_finite()));
+        let mut distinct = levels.clone();
+        distinct.sort_by(f64::total_cmp);
+        distinct.dedup();
+        // 2 km x 2 km hold at most 25 lake cells, one level each.
+        assert!(distinct.len() <= 25, "one level per lake: {distinct:?}");
     }
 
     #[test]

@@ -23,6 +23,7 @@
 use nalgebra::{Matrix4, Rotation3, Translation3, Vector3};
 use serde::{Deserialize, Serialize};
 
+use super::render::{render_points, Rendering};
 use super::surface::{Sampler, Surface};
 use crate::raster::GeoTransform;
 use crate::rng::{derive_seed, hash2, unit_f64, SplitMix64};
@@ -67,6 +68,16 @@ pub struct TileSetParams {
     pub changes: bool,
     /// Leave tile_00 unperturbed (identity matrix_world).
     pub anchor_first: bool,
+    /// How pixels are made from the world (see [`super::render`]).
+    #[serde(default)]
+    pub rendering: Rendering,
+    /// Mean points per pixel of the point renderings (0: the rendering's default).
+    #[serde(default)]
+    pub points_per_px: f64,
+    /// A vertical datum offset added to the z shift of every tile whose
+    /// (row + col) is odd, so that neighbours differ by it (metres).
+    #[serde(default)]
+    pub dz_offset_m: f64,
 }
 
 impl Default for TileSetParams {
@@ -90,6 +101,9 @@ impl Default for TileSetParams {
             max_rot_deg: 0.03,
             changes: true,
             anchor_first: false,
+            rendering: Rendering::Centre,
+            points_per_px: 0.0,
+            dz_offset_m: 0.0,
         }
     }
 }
@@ -102,6 +116,10 @@ pub struct PixelEffects {
     pub void_fraction: f64,
     /// Show the changed buildings of this tile's epoch.
     pub changes: bool,
+    /// How pixels are made from the world; noise is per point for the point renderings.
+    pub rendering: Rendering,
+    /// Mean points per pixel of the point renderings (0: the rendering's default).
+    pub points_per_px: f64,
 }
 
 impl PixelEffects {
@@ -112,6 +130,8 @@ impl PixelEffects {
             outlier_fraction: 0.0,
             void_fraction: 0.0,
             changes: false,
+            rendering: Rendering::Centre,
+            points_per_px: 0.0,
         }
     }
 
@@ -121,6 +141,8 @@ impl PixelEffects {
             outlier_fraction: p.outlier_fraction,
             void_fraction: p.void_fraction,
             changes: p.changes,
+            rendering: p.rendering,
+            points_per_px: p.points_per_px,
         }
     }
 }
@@ -171,11 +193,14 @@ pub fn plan_tiles(p: &TileSetParams, pivot_z_m: f64) -> Vec<TileSpec> {
                 p.origin_x_m + c as f64 * step_m,
                 p.origin_y_m - r as f64 * step_m,
             );
-            let (shift_m, rot_deg) = draw_perturbation(
+            let (mut shift_m, rot_deg) = draw_perturbation(
                 derive_seed(p.seed, 1000 + index as u64),
                 [p.max_shift_xy_m, p.max_shift_z_m, p.max_rot_deg],
                 p.anchor_first && index == 0,
             );
+            if (r + c) % 2 == 1 {
+                shift_m[2] += p.dz_offset_m;
+            }
             let centre = Vector3::new(x0 + side_m / 2.0, y0 - side_m / 2.0, pivot_z_m);
             tiles.push(TileSpec {
                 id: format!("tile_{index:02}"),
@@ -279,6 +304,9 @@ pub fn render_window(
     w: u64,
     h: u64,
 ) -> Vec<f32> {
+    if fx.rendering != Rendering::Centre {
+        return render_window_points(surface, spec, fx, col0, row0, w, h);
+    }
     let mut sampler = surface.sampler();
     let epoch = fx.changes.then_some(spec.seed);
     let void_seed = derive_seed(spec.seed, 1);
@@ -310,6 +338,53 @@ pub fn render_window(
             }
             out.push(z as f32);
         }
+    }
+    out
+}
+
+/// [`render_window`] for the point renderings: the gridded points, then the
+/// tile's voids and per-pixel outliers (noise is already per point).
+fn render_window_points(
+    surface: &Surface,
+    spec: &TileSpec,
+    fx: &PixelEffects,
+    col0: u64,
+    row0: u64,
+    w: u64,
+    h: u64,
+) -> Vec<f32> {
+    let epoch = fx.changes.then_some(spec.seed);
+    let heights = render_points(
+        surface,
+        spec,
+        fx.rendering,
+        fx.points_per_px,
+        fx.noise_sigma_m,
+        epoch,
+        [col0 as i64, row0 as i64, w as i64, h as i64],
+    );
+    let void_seed = derive_seed(spec.seed, 1);
+    let outlier_seed = derive_seed(spec.seed, 3);
+    let mut out = Vec::with_capacity((w * h) as usize);
+    for (k, z) in heights.into_iter().enumerate() {
+        let (col, row) = (col0 + k as u64 % w, row0 + k as u64 / w);
+        if col >= spec.width
+            || row >= spec.height
+            || (fx.void_fraction > 0.0
+                && in_void(void_seed, fx.void_fraction, col as i64, row as i64))
+        {
+            out.push(f32::NAN);
+            continue;
+        }
+        let mut z = z;
+        if fx.outlier_fraction > 0.0 {
+            let mut rng = SplitMix64::new(hash2(outlier_seed, col as i64, row as i64));
+            if rng.chance(fx.outlier_fraction) {
+                let sign = if rng.chance(0.5) { 1.0 } else { -1.0 };
+                z += sign * rng.range(5.0, 40.0);
+            }
+        }
+        out.push(z as f32);
     }
     out
 }

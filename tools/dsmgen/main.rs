@@ -1,6 +1,7 @@
 //! `dsmgen`: synthetic DSMs with a known answer, for tests and benchmarks.
 //!
-//! - `dsmgen tiles`: overlapping perturbed tiles (chain or grid) + truth.json
+//! - `dsmgen tiles`: overlapping perturbed tiles (chain or grid) + truth.json,
+//!   rendered at pixel centres or gridded from scattered points (`--render`)
 //! - `dsmgen big`: one large unperturbed DSM written tile by tile (ingest benchmark)
 //! - `dsmgen truth-grid`: the noise-free true surface over a tile set or bbox
 //! - `dsmgen cut`: overlapping perturbed tiles cut from a real DSM + truth.json
@@ -13,8 +14,8 @@ use clap::{Parser, Subcommand, ValueEnum};
 use dsmstream::raster::GeoTransform;
 use dsmstream::synth::{
     cut_collection, epsg_crs, render_window, tiles::rigid_about, write_raster, write_tile_set,
-    write_truth_grid, CutParams, Layout, PixelEffects, Surface, SurfaceParams, SynthError,
-    TileSetParams, TileSpec, Truth,
+    write_truth_grid, CutParams, Layout, PixelEffects, Rendering, Surface, SurfaceParams,
+    SynthError, TileSetParams, TileSpec, Truth,
 };
 
 #[derive(Parser)]
@@ -40,6 +41,45 @@ enum Command {
     TruthGrid(TruthGridArgs),
     /// Overlapping tiles cut from a real DSM, each moved by a known rigid motion, and truth.json.
     Cut(CutArgs),
+}
+
+/// How pixels are made from the world (see `dsmstream::synth::render`).
+#[derive(Clone, Copy, ValueEnum)]
+enum RenderArg {
+    /// The surface at each pixel centre.
+    Centre,
+    /// Max of Poisson-scattered lidar points per pixel.
+    LidarMax,
+    /// Mean of Poisson-scattered lidar points per pixel.
+    LidarMean,
+    /// Linear in the Delaunay triangles of scattered (stereo) points.
+    Tin,
+    /// Inverse-distance weighting of scattered (stereo) points.
+    Idw,
+    /// lidar-mean then a 5 x 5 Gaussian (a matching window).
+    Smooth,
+}
+
+impl RenderArg {
+    fn rendering(self) -> Rendering {
+        match self {
+            RenderArg::Centre => Rendering::Centre,
+            RenderArg::LidarMax => Rendering::LidarMax,
+            RenderArg::LidarMean => Rendering::LidarMean,
+            RenderArg::Tin => Rendering::Tin,
+            RenderArg::Idw => Rendering::Idw,
+            RenderArg::Smooth => Rendering::Smooth,
+        }
+    }
+}
+
+/// What lakes look like.
+#[derive(Clone, Copy, ValueEnum)]
+enum WaterArg {
+    /// No-data.
+    Nan,
+    /// Flat water 1 m below the terrain at the lake's centre.
+    Flat,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -96,6 +136,31 @@ struct TilesArgs {
     /// Leave tile_00 unperturbed.
     #[arg(long)]
     anchor_first: bool,
+    /// How pixels are gridded: at pixel centres, or from scattered points.
+    #[arg(long, value_enum, default_value = "centre")]
+    render: RenderArg,
+    /// Mean points per pixel of the point renderings (default: 4 lidar/smooth, 1 idw, 0.5 tin).
+    #[arg(long)]
+    points_per_px: Option<f64>,
+    /// Vertical datum offset (metres) added to every tile with odd row + col,
+    /// so that neighbours differ by it.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    dz_offset: f64,
+    /// Terrain relief scale (0 with --buildings 0 --trees 0: a flat field).
+    #[arg(long, default_value_t = 1.0)]
+    relief: f64,
+    /// Fraction of 64 m cells with buildings.
+    #[arg(long, default_value_t = 0.55)]
+    buildings: f64,
+    /// Fraction of 64 m cells with trees.
+    #[arg(long, default_value_t = 0.25)]
+    trees: f64,
+    /// Fraction of 512 m cells holding a lake.
+    #[arg(long, default_value_t = 0.2)]
+    lakes: f64,
+    /// Lakes as no-data or as flat water.
+    #[arg(long, value_enum, default_value = "nan")]
+    water: WaterArg,
     #[arg(long, default_value_t = 32617)]
     epsg: u32,
     /// COG tile size inside each file.
@@ -261,18 +326,45 @@ fn tiles(a: TilesArgs) -> Result<(), SynthError> {
         max_rot_deg: a.max_rot_deg,
         changes: !a.no_changes,
         anchor_first: a.anchor_first,
+        rendering: a.render.rendering(),
+        points_per_px: a.points_per_px.unwrap_or(0.0),
+        dz_offset_m: a.dz_offset,
         ..Default::default()
     };
+    let scene = [a.relief, a.buildings, a.trees, a.lakes];
+    if scene.iter().any(|v| !v.is_finite() || *v < 0.0)
+        || a.points_per_px
+            .is_some_and(|d| d.is_nan() || d <= 0.0 || d > 64.0)
+        || !a.dz_offset.is_finite()
+    {
+        return Err(SynthError::BadParams(
+            "--relief, --buildings, --trees, --lakes must be >= 0, --points-per-px in (0, 64], --dz-offset finite".into(),
+        ));
+    }
+    let defaults = SurfaceParams::default();
     let surface = SurfaceParams {
         seed: a.seed,
-        ..Default::default()
+        relief_scale: a.relief,
+        lake_cells: a.lakes,
+        flat_water: matches!(a.water, WaterArg::Flat),
+        objects: dsmstream::synth::objects::ObjectParams {
+            building_cells: a.buildings,
+            tree_cells: a.trees,
+            changed_cells: defaults.objects.changed_cells.min(a.buildings),
+        },
+        ..defaults
     };
     let truth = write_tile_set(&params, &surface, &a.out, a.cog_tile)?;
     println!(
-        "wrote {} tiles of {} px at {} m and truth.json to {}",
+        "wrote {} tiles of {} px at {} m ({} rendering) and truth.json to {}",
         truth.tiles.len(),
         a.size,
         a.gsd,
+        RenderArg::value_variants()
+            .iter()
+            .find(|v| v.rendering() == params.rendering)
+            .and_then(|v| v.to_possible_value())
+            .map_or("centre".to_string(), |v| v.get_name().to_string()),
         a.out.display()
     );
     Ok(())
@@ -314,6 +406,8 @@ fn big(a: BigArgs) -> Result<(), SynthError> {
         outlier_fraction: a.outliers,
         void_fraction: a.voids,
         changes: false,
+        rendering: Rendering::Centre,
+        points_per_px: 0.0,
     };
     let bar = indicatif::ProgressBar::new(a.size.div_ceil(a.tile as u64));
     let started = std::time::Instant::now();
