@@ -6,7 +6,9 @@ mod util;
 
 mod align;
 mod align_journal;
+mod coarse;
 mod demo;
+mod dsmgen;
 mod faults;
 mod fuse_eval;
 mod fuzz;

@@ -1,6 +1,6 @@
 //! `dsmgen tiles --render ...` and the scene flags, run as the built binary.
 
-mod common;
+
 
 use std::process::Command;
 
@@ -18,7 +18,7 @@ fn renderings_write_tiles_and_the_same_truth() {
         ("smooth", Rendering::Smooth),
     ] {
         let dir = tempfile::tempdir().unwrap();
-        common::dsmgen_tiles(
+        crate::util::dsmgen_tiles(
             &[
                 "--count",
                 "2",

@@ -6,7 +6,7 @@
 //! `cargo test --release --test robust_coarse -- --ignored --nocapture` runs
 //! the experiment behind the table in docs/pending/robust.md.
 
-mod common;
+
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -77,7 +77,7 @@ fn generated_pair(dir: &Path, args: &[&str]) -> (PathBuf, [f64; 3]) {
     let tiles = dir.join("tiles");
     let mut all = vec!["--layout", "chain", "--count", "2", "--anchor-first"];
     all.extend_from_slice(args);
-    common::dsmgen_tiles(&all, &tiles);
+    crate::util::dsmgen_tiles(&all, &tiles);
     let store = dir.join("store.zarr");
     ingest(
         &[tiles.join("tile_00.tif"), tiles.join("tile_01.tif")],
