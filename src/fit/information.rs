@@ -228,11 +228,11 @@ pub(crate) fn constrained_directions(
     }
     if rule.max_sigma_m.is_finite() {
         let cov = sandwich(&eig, &keep, &restrict(&eq.clustered, model));
-        for k in 0..6 {
+        for (k, kept) in keep.iter_mut().enumerate() {
             let v = eig.eigenvectors.column(k);
             let sd = (v.transpose() * cov * v)[(0, 0)].max(0.0).sqrt();
-            if keep[k] && sd > rule.max_sigma_m {
-                keep[k] = false;
+            if sd > rule.max_sigma_m {
+                *kept = false;
             }
         }
     }

@@ -73,10 +73,7 @@ fn a_flat_plane_holds_x_y_and_yaw() {
     assert_eq!(info.degenerate, vec![Axis::X, Axis::Y, Axis::Yaw]);
     for axis in [Axis::X, Axis::Y, Axis::Yaw] {
         assert_eq!(info.sigma_of(axis), None);
-        assert_eq!(
-            info.info_6x6[(axis.index(), axis.index())].abs() < 1e-9,
-            true
-        );
+        assert!(info.info_6x6[(axis.index(), axis.index())].abs() < 1e-9);
     }
     for axis in [Axis::Z, Axis::Roll, Axis::Pitch] {
         let s = info.sigma_of(axis).unwrap();
