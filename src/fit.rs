@@ -9,9 +9,18 @@
 //!   paper's original fit.
 //!
 //! Both return the update as an isometry in the caller's (local) frame, and the
-//! point-to-plane fit also reports how well each direction is constrained.
+//! point-to-plane fit also reports how well each direction is constrained; it
+//! holds directions it cannot see at their current value, and [`information`]
+//! says what the final fit knows (6x6 information, per-axis sigmas, degenerate axes).
 
-use nalgebra::{Isometry3, Matrix3, Matrix6, Translation3, UnitQuaternion, Vector3, Vector6};
+pub mod information;
+
+pub use information::{fit_information, Axis, DegeneracyRule, FitInformation};
+
+use information::{constrained_directions, pseudo_inverse, NormalEquations};
+#[cfg(test)]
+use nalgebra::Vector6;
+use nalgebra::{Isometry3, Matrix3, Matrix6, Translation3, UnitQuaternion, Vector3};
 
 /// What the fit may change.
 #[derive(
@@ -68,60 +77,42 @@ pub struct FitSigma {
     pub trans_m: [f64; 3],
 }
 
-/// One linearised point-to-plane step. None when there are too few
-/// correspondences or the system is singular.
+/// One linearised point-to-plane step, holding only numerically singular
+/// directions ([`DegeneracyRule::NUMERICAL`]). None when there are too few
+/// correspondences or no direction is constrained.
 pub fn point_to_plane(corrs: &[Correspondence], model: Model) -> Option<FitUpdate> {
-    let total_w: f64 = corrs.iter().map(|c| c.weight).sum();
-    if corrs.len() < 6 || total_w <= 0.0 {
-        return None;
-    }
-    let centroid = corrs
-        .iter()
-        .map(|c| c.moving * c.weight)
-        .sum::<Vector3<f64>>()
-        / total_w;
-    // Rotation columns scaled by the RMS radius so eigenvalues compare like for like.
-    let radius = (corrs
-        .iter()
-        .map(|c| c.weight * (c.moving - centroid).norm_squared())
-        .sum::<f64>()
-        / total_w)
-        .sqrt()
-        .max(1e-6);
-    let mut h = Matrix6::<f64>::zeros();
-    let mut g = Vector6::<f64>::zeros();
-    let mut meat = Matrix6::<f64>::zeros();
-    for c in corrs {
-        let q = c.moving - centroid;
-        let a_rot = q.cross(&c.normal) / radius;
-        let a = Vector6::new(
-            a_rot.x, a_rot.y, a_rot.z, c.normal.x, c.normal.y, c.normal.z,
-        );
-        let r = c.plane_residual_m();
-        let aat = a * a.transpose();
-        h += c.weight * aat;
-        g += c.weight * r * a;
-        meat += (c.weight * r).powi(2) * aat;
-    }
-    let (x, ratio, weakest) = match model {
-        Model::Rigid => solve_spd(&h, &g)?,
+    point_to_plane_with(corrs, model, &DegeneracyRule::NUMERICAL)
+}
+
+/// One linearised point-to-plane step whose update is projected onto the directions
+/// `rule` calls well constrained: the others keep their current value
+/// (see [`information`]).
+pub fn point_to_plane_with(
+    corrs: &[Correspondence],
+    model: Model,
+    rule: &DegeneracyRule,
+) -> Option<FitUpdate> {
+    let eq = NormalEquations::new(corrs, rule.cluster_cell_m)?;
+    let (h, g, radius) = (eq.h, eq.g, eq.radius_m);
+    let (ratio, weakest) = match model {
+        Model::Rigid => conditioning(&h)?,
         Model::Translation => {
             let h3: Matrix3<f64> = h.fixed_view::<3, 3>(3, 3).into_owned();
-            let g3: Vector3<f64> = g.fixed_rows::<3>(3).into_owned();
-            let (x3, ratio, w3) = solve_spd3(&h3, &g3)?;
-            (
-                Vector6::new(0.0, 0.0, 0.0, x3.x, x3.y, x3.z),
-                ratio,
-                [0.0, 0.0, 0.0, w3[0], w3[1], w3[2]],
-            )
+            let (ratio, w3) = conditioning3(&h3)?;
+            (ratio, [0.0, 0.0, 0.0, w3[0], w3[1], w3[2]])
         }
     };
-    let sigma = sandwich_sigma(&h, &meat, model, radius);
+    let (eig, keep) = constrained_directions(&eq, model, rule);
+    if !keep.iter().any(|&k| k) {
+        return None;
+    }
+    let x = -(pseudo_inverse(&eig, &keep) * g);
+    let sigma = sandwich_sigma(&h, &eq.meat, model, radius);
     let omega = Vector3::new(x[0], x[1], x[2]) / radius;
     let t = Vector3::new(x[3], x[4], x[5]);
     let rotation = UnitQuaternion::from_scaled_axis(omega);
     // q -> R (q - c) + c + t
-    let translation = centroid + t - rotation * centroid;
+    let translation = eq.centroid + t - rotation * eq.centroid;
     Some(FitUpdate {
         update: Isometry3::from_parts(Translation3::from(translation), rotation),
         constraint_ratio: ratio,
@@ -154,45 +145,29 @@ fn sandwich_sigma(h: &Matrix6<f64>, meat: &Matrix6<f64>, model: Model, radius_m:
     sigma
 }
 
-/// Solves H x = -g for a 6x6 symmetric positive semi-definite H.
-fn solve_spd(h: &Matrix6<f64>, g: &Vector6<f64>) -> Option<(Vector6<f64>, f64, [f64; 6])> {
+/// Smallest over largest eigenvalue of a 6x6 symmetric H and the smallest one's
+/// direction; None when H has no positive eigenvalue.
+fn conditioning(h: &Matrix6<f64>) -> Option<(f64, [f64; 6])> {
     let eig = h.symmetric_eigen();
-    let (mut imin, mut imax) = (0, 0);
-    for i in 0..6 {
-        if eig.eigenvalues[i] < eig.eigenvalues[imin] {
-            imin = i;
-        }
-        if eig.eigenvalues[i] > eig.eigenvalues[imax] {
-            imax = i;
-        }
-    }
-    let max = eig.eigenvalues[imax];
+    let (imin, max) = (eig.eigenvalues.imin(), eig.eigenvalues.max());
     if max <= 0.0 {
         return None;
     }
-    let ratio = (eig.eigenvalues[imin] / max).max(0.0);
     let mut weakest = [0.0; 6];
     for (k, w) in weakest.iter_mut().enumerate() {
         *w = eig.eigenvectors[(k, imin)];
     }
-    let x = h.cholesky()?.solve(&(-g));
-    Some((x, ratio, weakest))
+    Some(((eig.eigenvalues[imin] / max).max(0.0), weakest))
 }
 
-fn solve_spd3(h: &Matrix3<f64>, g: &Vector3<f64>) -> Option<(Vector3<f64>, f64, [f64; 3])> {
+fn conditioning3(h: &Matrix3<f64>) -> Option<(f64, [f64; 3])> {
     let eig = h.symmetric_eigen();
-    let imin = eig.eigenvalues.imin();
-    let max = eig.eigenvalues.max();
+    let (imin, max) = (eig.eigenvalues.imin(), eig.eigenvalues.max());
     if max <= 0.0 {
         return None;
     }
     let v = eig.eigenvectors.column(imin);
-    let x = h.cholesky()?.solve(&(-g));
-    Some((
-        x,
-        (eig.eigenvalues[imin] / max).max(0.0),
-        [v[0], v[1], v[2]],
-    ))
+    Some(((eig.eigenvalues[imin] / max).max(0.0), [v[0], v[1], v[2]]))
 }
 
 /// Weighted Kabsch/Umeyama: the rigid motion minimising sum w |R q + t - p|^2,

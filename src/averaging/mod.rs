@@ -12,8 +12,11 @@
 //! the multigrid preconditioner ([`multilevel`]) keeps the iteration count nearly
 //! flat on tile grids (~45 at 10^6 nodes, where Jacobi needs thousands).
 
+mod block;
 mod cg;
+mod covariance;
 mod gauge;
+mod informed;
 mod laplacian;
 mod multilevel;
 mod robust;
@@ -21,7 +24,11 @@ mod rotation;
 pub mod synthetic;
 mod translation;
 
+pub use covariance::{CovarianceMethod, NodeSigma};
 pub use gauge::fix_gauge;
+pub use informed::{
+    average_informed, EdgeInformation, InformedOptions, InformedResult, NodeStatus,
+};
 pub use robust::edge_residuals;
 
 use crate::graph::{Components, GraphError, PoseGraph};

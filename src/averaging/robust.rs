@@ -53,7 +53,7 @@ pub(crate) fn residuals_of_parts(
 
 /// The rotation vector (axis times angle, radians) of a rotation matrix, accurate
 /// for tiny angles.
-fn rotation_vector(r: &Matrix3<f64>) -> Vector3<f64> {
+pub(crate) fn rotation_vector(r: &Matrix3<f64>) -> Vector3<f64> {
     let skew = Vector3::new(
         r[(2, 1)] - r[(1, 2)],
         r[(0, 2)] - r[(2, 0)],

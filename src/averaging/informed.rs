@@ -1,0 +1,517 @@
+//! Averaging that learns from each edge only what it knows: every edge carries a
+//! 3x3 rotation and a 3x3 translation information matrix ([`EdgeInformation`],
+//! from the pair's [`FitInformation`]), so an edge over a flat field fixes height
+//! and tilt but not x, y or yaw. Steps:
+//! 1. the scalar averaging ([`super::average`]) with weights 1 / mean variance and
+//!    per-axis sigmas 1 / sqrt(Omega_kk) (its robust rounds reject gross outliers),
+//!    edges not `reliable` (not converged, ambiguous) at `unreliable_factor` weight;
+//! 2. refinement with the full 3x3 information ([`super::block`]): Gauss-Newton on
+//!    the rotations (right perturbations), then the linear translation solve;
+//! 3. `max_rounds` iteratively reweighted refinements with Cauchy weights
+//!    1 / (1 + (d / outlier_sigma)^2) of the Mahalanobis residual
+//!    d = sqrt(r^T Omega r) (every edge readmitted), then rounds that drop edges
+//!    whose d exceeds max(`outlier_sigma`, k x median) (all at once; bridges
+//!    down-weighted instead of dropped), the rest at full weight;
+//! 4. per-node standard errors ([`super::covariance`]) and status.
+//!
+//! Frames: both blocks are about the axes of DSM i's frame (the pair's reference),
+//! the translation at the edge's centre (`Edge::centre_j`); DSM rotations are tiny,
+//! so i's and j's axes agree to first order.
+
+use super::block::{BlockEdge, BlockSystem};
+use super::covariance::{node_sigmas, CovarianceMethod, NodeSigma};
+use super::robust::rotation_vector;
+use super::{average, AveragingError, AveragingOptions, AveragingResult};
+use crate::fit::FitInformation;
+use crate::graph::{EdgeSigma, PoseGraph, UnionFind};
+use crate::poses::rigid::{from_parts, rotation, rotation_from_axis_angle, translation};
+use nalgebra::{Matrix3, Matrix6, Vector3};
+
+/// What one edge knows, about the axes of i's frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EdgeInformation {
+    /// Information of the relative rotation, rad^-2 (zero along unconstrained axes).
+    pub rotation: Matrix3<f64>,
+    /// Information of the offset of the edge's centre, m^-2.
+    pub translation: Matrix3<f64>,
+    /// False for edges that did not converge or are ambiguous: they enter at
+    /// `unreliable_factor` of their information and never count as constraining.
+    pub reliable: bool,
+}
+
+impl EdgeInformation {
+    /// The marginal rotation and translation information of a fit: the inverses of
+    /// the covariance blocks on their constrained subspaces (zero along degenerate
+    /// axes).
+    pub fn from_fit(info: &FitInformation, reliable: bool) -> Self {
+        let c: Matrix6<f64> = info.covariance_6x6;
+        EdgeInformation {
+            translation: block_inverse(&c.fixed_view::<3, 3>(0, 0).into_owned()),
+            rotation: block_inverse(&c.fixed_view::<3, 3>(3, 3).into_owned()),
+            reliable,
+        }
+    }
+
+    fn is_valid(&self) -> bool {
+        let symmetric =
+            |m: &Matrix3<f64>| (m - m.transpose()).amax() <= 1e-9 * m.amax().max(1e-300);
+        let ok = |m: &Matrix3<f64>| {
+            m.iter().all(|v| v.is_finite())
+                && symmetric(m)
+                && m.symmetric_eigen().eigenvalues.min() >= -1e-9 * m.amax()
+        };
+        ok(&self.rotation) && ok(&self.translation)
+    }
+}
+
+/// Pseudo-inverse of a symmetric positive semi-definite 3x3 (relative cutoff 1e-12).
+fn block_inverse(c: &Matrix3<f64>) -> Matrix3<f64> {
+    let eig = c.symmetric_eigen();
+    let max = eig.eigenvalues.max();
+    let mut out = Matrix3::zeros();
+    for k in 0..3 {
+        if max > 0.0 && eig.eigenvalues[k] > 1e-12 * max {
+            let v = eig.eigenvectors.column(k);
+            out += v * v.transpose() / eig.eigenvalues[k];
+        }
+    }
+    out
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InformedOptions {
+    /// The scalar averaging of step 1 (its gauge is overridden: mean).
+    pub base: AveragingOptions,
+    /// Weight factor of edges not `reliable`.
+    pub unreliable_factor: f64,
+    /// Mahalanobis residual (in sigmas) above which an edge may be an outlier.
+    pub outlier_sigma: f64,
+    /// ... and above this times the median Mahalanobis residual.
+    pub outlier_k: f64,
+    pub max_rounds: usize,
+    /// Each edge's information is floored at this fraction of the median
+    /// information (isotropic), so a node seen only along some axes stays solvable.
+    pub floor_of_median: f64,
+    pub covariance: CovarianceMethod,
+    /// A node whose shift sigma exceeds this (metres) is `Weak`.
+    pub weak_sigma_m: f64,
+    /// ... or whose rotation sigma exceeds this (degrees).
+    pub weak_sigma_deg: f64,
+}
+
+impl Default for InformedOptions {
+    fn default() -> Self {
+        InformedOptions {
+            base: AveragingOptions::default(),
+            unreliable_factor: 0.01,
+            outlier_sigma: 5.0,
+            outlier_k: 5.0,
+            max_rounds: 10,
+            floor_of_median: 1e-6,
+            covariance: CovarianceMethod::default(),
+            weak_sigma_m: 1.0,
+            weak_sigma_deg: 0.5,
+        }
+    }
+}
+
+/// How well the graph fixes a node.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum NodeStatus {
+    Constrained,
+    /// Reliable edges reach it, but its sigma exceeds the weak limits.
+    Weak,
+    /// No reliable, kept edge touches it: its pose is not learned from the data.
+    Unconstrained,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct InformedResult {
+    /// Poses, dropped and down-weighted edges (steps 1 and 3), residuals.
+    pub averaging: AveragingResult,
+    /// One per node, about its own axes (translation at its origin, given rotations).
+    pub sigma: Vec<NodeSigma>,
+    pub status: Vec<NodeStatus>,
+    /// Mahalanobis residuals (rotation, translation) of every edge, in sigmas.
+    pub mahalanobis: Vec<(f64, f64)>,
+    /// Conjugate-gradient iterations of the refinement solves.
+    pub refine_iterations: usize,
+}
+
+/// Averages `graph` with one [`EdgeInformation`] per edge.
+pub fn average_informed(
+    graph: &PoseGraph,
+    information: &[EdgeInformation],
+    options: &InformedOptions,
+) -> Result<InformedResult, AveragingError> {
+    if information.len() != graph.edges.len() {
+        return Err(AveragingError::InvalidOptions(format!(
+            "{} edge information matrices for {} edges",
+            information.len(),
+            graph.edges.len()
+        )));
+    }
+    if let Some(k) = information.iter().position(|e| !e.is_valid()) {
+        return Err(AveragingError::InvalidOptions(format!(
+            "edge {k}: information must be finite, symmetric, positive semi-definite"
+        )));
+    }
+    let omegas = effective_information(information, options);
+    let scalar = scalar_graph(graph, &omegas);
+    let base = AveragingOptions {
+        gauge: super::Gauge::Mean,
+        ..options.base
+    };
+    let mut result = average(&scalar, &base)?;
+    let usable: Vec<f64> = (0..graph.edges.len())
+        .map(|k| f64::from(scalar.edges[k].weight > 0.0))
+        .collect();
+    let mut rotations: Vec<Matrix3<f64>> = result.poses.iter().map(rotation).collect();
+    let mut translations: Vec<Vector3<f64>> = result.poses.iter().map(translation).collect();
+    let mut iterations = 0;
+    // Iteratively reweighted (Cauchy, scale `outlier_sigma`) from the scalar
+    // solution, every edge readmitted: the scalar rounds may have dropped good ones.
+    let mut mahalanobis = mahalanobis_residuals(graph, &omegas, &rotations, &translations);
+    for _ in 0..options.max_rounds {
+        let weights: Vec<f64> = mahalanobis
+            .iter()
+            .zip(&usable)
+            .map(|(&(r, t), &u)| u / (1.0 + (r.max(t) / options.outlier_sigma).powi(2)))
+            .collect();
+        iterations += refine(
+            graph,
+            &omegas,
+            &weights,
+            options,
+            &mut rotations,
+            &mut translations,
+        );
+        mahalanobis = mahalanobis_residuals(graph, &omegas, &rotations, &translations);
+    }
+    // Then hard decisions, full weight for the rest, and rounds as in `robust`.
+    let mut active = usable;
+    result.dropped_edges.clear();
+    result.downweighted_edges.clear();
+    for round in 0..=options.max_rounds {
+        let (dropped, downweighted) = select(graph, &active, &mahalanobis, options);
+        if dropped.is_empty() && downweighted.is_empty() && round > 0 {
+            break;
+        }
+        for &k in &dropped {
+            active[k] = 0.0;
+            result.dropped_edges.push(k);
+        }
+        for &(k, f) in &downweighted {
+            active[k] *= f;
+            result.downweighted_edges.push(k);
+        }
+        iterations += refine(
+            graph,
+            &omegas,
+            &active,
+            options,
+            &mut rotations,
+            &mut translations,
+        );
+        mahalanobis = mahalanobis_residuals(graph, &omegas, &rotations, &translations);
+    }
+    result.dropped_edges.sort_unstable();
+    result.dropped_edges.dedup();
+    result.downweighted_edges.sort_unstable();
+    result.downweighted_edges.dedup();
+    let mut poses: Vec<_> = rotations
+        .iter()
+        .zip(&translations)
+        .map(|(r, t)| from_parts(r, t))
+        .collect();
+    let components = active_components(graph, &active);
+    for members in &components {
+        super::fix_gauge(&mut poses, members, None);
+    }
+    let rotations: Vec<Matrix3<f64>> = poses.iter().map(rotation).collect();
+    let weighted: Vec<Matrix6<f64>> = omegas.iter().zip(&active).map(|(o, &a)| o * a).collect();
+    let sigma = node_sigmas(
+        graph,
+        &weighted,
+        &rotations,
+        &components,
+        options.covariance,
+    );
+    let status = node_status(graph, information, &active, &sigma, options);
+    result.edge_residuals = super::edge_residuals(graph, &poses);
+    result.poses = poses;
+    result.components = components;
+    Ok(InformedResult {
+        averaging: result,
+        sigma,
+        status,
+        mahalanobis,
+        refine_iterations: iterations,
+    })
+}
+
+/// Each edge's information as one 6x6 block-diagonal (rotation top-left), times the
+/// reliability factor, floored at `floor_of_median` of the median (per block).
+fn effective_information(
+    information: &[EdgeInformation],
+    options: &InformedOptions,
+) -> Vec<Matrix6<f64>> {
+    let median_trace = |f: &dyn Fn(&EdgeInformation) -> f64| {
+        let mut v: Vec<f64> = information.iter().map(f).collect();
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied().unwrap_or(0.0) / 3.0
+    };
+    let floor_r = options.floor_of_median * median_trace(&|e| e.rotation.trace());
+    let floor_t = options.floor_of_median * median_trace(&|e| e.translation.trace());
+    information
+        .iter()
+        .map(|e| {
+            let f = if e.reliable {
+                1.0
+            } else {
+                options.unreliable_factor
+            };
+            let mut m = Matrix6::zeros();
+            m.fixed_view_mut::<3, 3>(0, 0)
+                .copy_from(&(e.rotation * f + Matrix3::identity() * floor_r));
+            m.fixed_view_mut::<3, 3>(3, 3)
+                .copy_from(&(e.translation * f + Matrix3::identity() * floor_t));
+            m
+        })
+        .collect()
+}
+
+/// The graph with scalar weights 1 / (mean variance), variance_k = 1 / Omega_kk
+/// (an axis an edge does not see makes the whole edge weak: a scalar cannot say
+/// "x only"), and per-axis sigmas 1 / sqrt(Omega_kk).
+fn scalar_graph(graph: &PoseGraph, omegas: &[Matrix6<f64>]) -> PoseGraph {
+    let weight = |o: &Matrix6<f64>, at: usize| {
+        3.0 / (at..at + 3)
+            .map(|k| 1.0 / o[(k, k)].max(f64::MIN_POSITIVE))
+            .sum::<f64>()
+    };
+    let mean = |at: usize| {
+        (omegas.iter().map(|o| weight(o, at)).sum::<f64>() / omegas.len().max(1) as f64)
+            .max(f64::MIN_POSITIVE)
+    };
+    let (mr, mt) = (mean(0), mean(3));
+    let mut out = graph.clone();
+    for (e, o) in out.edges.iter_mut().zip(omegas) {
+        e.weight = weight(o, 0) / mr;
+        e.translation_weight = weight(o, 3) / mt;
+        let sd = |k: usize| 1.0 / o[(k, k)].max(f64::MIN_POSITIVE).sqrt();
+        e.sigma = Some(EdgeSigma::new(
+            Vector3::new(sd(0), sd(1), sd(2)),
+            Vector3::new(sd(3), sd(4), sd(5)),
+        ));
+    }
+    out
+}
+
+/// Block edges of the rotations (at the current rotations) or of the translations.
+fn block_edges(
+    graph: &PoseGraph,
+    omegas: &[Matrix6<f64>],
+    active: &[f64],
+    rotations: &[Matrix3<f64>],
+    rotation_part: bool,
+) -> Vec<BlockEdge> {
+    graph
+        .edges
+        .iter()
+        .zip(omegas)
+        .zip(active)
+        .filter(|(_, &a)| a > 0.0)
+        .map(|((e, o), &a)| {
+            let (r_i, r_j) = (rotations[e.i], rotations[e.j]);
+            if rotation_part {
+                let r_rel = r_i.tr_mul(&r_j);
+                let r0 = rotation_vector(&e.rotation().tr_mul(&r_rel));
+                let omega = o.fixed_view::<3, 3>(0, 0).into_owned() * a;
+                BlockEdge {
+                    i: e.i,
+                    j: e.j,
+                    b: r_rel.transpose(),
+                    omega,
+                    r0,
+                }
+            } else {
+                let omega = r_i * o.fixed_view::<3, 3>(3, 3).into_owned() * r_i.transpose() * a;
+                let r0 = r_j * e.centre_j - r_i * e.apply(&e.centre_j);
+                BlockEdge {
+                    i: e.i,
+                    j: e.j,
+                    b: Matrix3::identity(),
+                    omega,
+                    r0,
+                }
+            }
+        })
+        .collect()
+}
+
+/// Two Gauss-Newton steps on the rotations, then the translations; CG iterations.
+fn refine(
+    graph: &PoseGraph,
+    omegas: &[Matrix6<f64>],
+    active: &[f64],
+    options: &InformedOptions,
+    rotations: &mut [Matrix3<f64>],
+    translations: &mut [Vector3<f64>],
+) -> usize {
+    let mut iterations = 0;
+    let (tol, max_iter) = (1e-10, options.base.cg_max_iter);
+    for _ in 0..2 {
+        let edges = block_edges(graph, omegas, active, rotations, true);
+        let system = BlockSystem {
+            n: graph.n,
+            prior: tiny_prior(&edges),
+            edges,
+        };
+        let rhs = system.gather(|_, e| -(e.omega * e.r0));
+        let (delta, report) = system.solve(&system.preconditioner(), &rhs, tol, max_iter);
+        iterations += report.iterations;
+        for (r, d) in rotations.iter_mut().zip(&delta) {
+            *r *= rotation_from_axis_angle(d);
+        }
+    }
+    let edges = block_edges(graph, omegas, active, rotations, false);
+    let system = BlockSystem {
+        n: graph.n,
+        prior: tiny_prior(&edges),
+        edges,
+    };
+    let rhs = system.gather(|_, e| -(e.omega * e.r0));
+    let (t, report) = system.solve(&system.preconditioner(), &rhs, tol, max_iter);
+    iterations += report.iterations;
+    translations.copy_from_slice(&t);
+    iterations
+}
+
+/// 1e-9 of the mean information: fixes the free motions without biasing the rest.
+fn tiny_prior(edges: &[BlockEdge]) -> f64 {
+    let mean = edges.iter().map(|e| e.omega.trace() / 3.0).sum::<f64>() / edges.len().max(1) as f64;
+    (1e-9 * mean).max(f64::MIN_POSITIVE)
+}
+
+/// sqrt(r^T Omega r) of the rotation and translation residuals of every edge
+/// (information without the reliability factor's floor effect: as given).
+fn mahalanobis_residuals(
+    graph: &PoseGraph,
+    omegas: &[Matrix6<f64>],
+    rotations: &[Matrix3<f64>],
+    translations: &[Vector3<f64>],
+) -> Vec<(f64, f64)> {
+    graph
+        .edges
+        .iter()
+        .zip(omegas)
+        .map(|(e, o)| {
+            let (r_i, r_j) = (rotations[e.i], rotations[e.j]);
+            let rr = rotation_vector(&e.rotation().tr_mul(&r_i.tr_mul(&r_j)));
+            let rt = r_i.tr_mul(&(r_j * e.centre_j + translations[e.j] - translations[e.i]))
+                - e.apply(&e.centre_j);
+            let q =
+                |m: Matrix3<f64>, v: Vector3<f64>| (v.transpose() * m * v)[(0, 0)].max(0.0).sqrt();
+            (
+                q(o.fixed_view::<3, 3>(0, 0).into_owned(), rr),
+                q(o.fixed_view::<3, 3>(3, 3).into_owned(), rt),
+            )
+        })
+        .collect()
+}
+
+type Round = (Vec<usize>, Vec<(usize, f64)>);
+
+/// This round's outliers: every edge over the limit (the reweighted solve has
+/// already kept them from spreading); those that would split a component are
+/// down-weighted instead, the least bad first.
+fn select(
+    graph: &PoseGraph,
+    active: &[f64],
+    residuals: &[(f64, f64)],
+    options: &InformedOptions,
+) -> Round {
+    let live: Vec<usize> = (0..graph.edges.len())
+        .filter(|&k| active[k] >= 1e-12)
+        .collect();
+    let mut values: Vec<f64> = live
+        .iter()
+        .map(|&k| residuals[k].0.max(residuals[k].1))
+        .collect();
+    if values.is_empty() {
+        return (Vec::new(), Vec::new());
+    }
+    let mid = values.len() / 2;
+    let median = *values.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let limit = options.outlier_sigma.max(options.outlier_k * median);
+    let bad = |k: usize| residuals[k].0.max(residuals[k].1) / limit;
+    let mut outliers: Vec<usize> = live
+        .iter()
+        .copied()
+        .filter(|&k| bad(k) > 1.0 && active[k] >= 0.999)
+        .collect();
+    outliers.sort_by(|&a, &b| bad(b).total_cmp(&bad(a)));
+    let chosen = outliers;
+    let mut sets = UnionFind::new(graph.n);
+    for &k in &live {
+        if !chosen.contains(&k) {
+            sets.union(graph.edges[k].i, graph.edges[k].j);
+        }
+    }
+    let (mut dropped, mut downweighted) = (Vec::new(), Vec::new());
+    for &k in chosen.iter().rev() {
+        if sets.union(graph.edges[k].i, graph.edges[k].j) {
+            downweighted.push((k, 1.0 / bad(k)));
+        } else {
+            dropped.push(k);
+        }
+    }
+    (dropped, downweighted)
+}
+
+fn active_components(graph: &PoseGraph, active: &[f64]) -> Vec<Vec<usize>> {
+    let pairs = graph
+        .edges
+        .iter()
+        .zip(active)
+        .filter(|(_, &a)| a > 0.0)
+        .map(|(e, _)| (e.i, e.j));
+    crate::graph::Components::new(graph.n, pairs).members
+}
+
+fn node_status(
+    graph: &PoseGraph,
+    information: &[EdgeInformation],
+    active: &[f64],
+    sigma: &[NodeSigma],
+    options: &InformedOptions,
+) -> Vec<NodeStatus> {
+    let mut reached = vec![false; graph.n];
+    for ((e, info), &a) in graph.edges.iter().zip(information).zip(active) {
+        if info.reliable && a >= 0.999 {
+            reached[e.i] = true;
+            reached[e.j] = true;
+        }
+    }
+    reached
+        .iter()
+        .zip(sigma)
+        .map(|(&r, s)| {
+            if !r {
+                NodeStatus::Unconstrained
+            } else if s.shift_m.iter().any(|&v| v > options.weak_sigma_m)
+                || s.rotation_deg.iter().any(|&v| v > options.weak_sigma_deg)
+            {
+                NodeStatus::Weak
+            } else {
+                NodeStatus::Constrained
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+#[path = "informed_tests.rs"]
+mod tests;

@@ -1,0 +1,251 @@
+//! Tests of [`super`]: a tile grid whose edges know different things (rough
+//! overlaps: every axis; flat fields: height and tilt only), 20 % gross outliers,
+//! one DSM reached only by unreliable edges.
+
+use super::*;
+use crate::averaging::synthetic::{normal3, SplitMix64};
+use crate::graph::Edge;
+use crate::poses::rigid::{apply, inverse_rigid};
+use nalgebra::Matrix4;
+
+struct Case {
+    graph: PoseGraph,
+    information: Vec<EdgeInformation>,
+    truth: Vec<Matrix4<f64>>,
+    positions: Vec<Vector3<f64>>,
+    outliers: Vec<usize>,
+}
+
+/// A random symmetric positive definite 3x3 with these standard deviations along
+/// random axes, and a draw from it.
+fn anisotropic(rng: &mut SplitMix64, sigmas: [f64; 3]) -> (Matrix3<f64>, Vector3<f64>) {
+    let axes = rotation_from_axis_angle(&normal3(rng, 1.0));
+    let d = Matrix3::from_diagonal(&Vector3::from(sigmas));
+    let root = axes * d;
+    let cov = root * root.transpose();
+    let draw = root * Vector3::new(rng.normal(), rng.normal(), rng.normal());
+    (block_inverse(&cov), draw)
+}
+
+fn case(width: usize, seed: u64, outlier_fraction: f64) -> Case {
+    let mut rng = SplitMix64::new(seed);
+    let n = width * width;
+    let spacing = 100.0;
+    let positions: Vec<Vector3<f64>> = (0..n)
+        .map(|k| {
+            Vector3::new(
+                (k % width) as f64 * spacing,
+                (k / width) as f64 * spacing,
+                0.0,
+            )
+        })
+        .collect();
+    let truth: Vec<Matrix4<f64>> = (0..n)
+        .map(|_| {
+            let r = rotation_from_axis_angle(&normal3(&mut rng, 0.3f64.to_radians()));
+            from_parts(&r, &normal3(&mut rng, 2.0))
+        })
+        .collect();
+    let mut pairs = Vec::new();
+    for k in 0..n {
+        let (x, y) = (k % width, k / width);
+        if x + 1 < width {
+            pairs.push((k, k + 1));
+        }
+        if y + 1 < width {
+            pairs.push((k, k + width));
+        }
+        if x + 1 < width && y + 1 < width {
+            pairs.push((k, k + width + 1));
+        }
+    }
+    let (mut edges, mut information, mut outliers) = (Vec::new(), Vec::new(), Vec::new());
+    for (k, &(i, j)) in pairs.iter().enumerate() {
+        let centre = (positions[i] + positions[j]) / 2.0;
+        let c_j = apply(&inverse_rigid(&truth[j]), &centre);
+        let flat = rng.next_f64() < 0.3;
+        let scale = 1.0 + 2.0 * rng.next_f64();
+        let (mut om_t, mut dt) = anisotropic(&mut rng, [0.02 * scale, 0.03 * scale, 0.05 * scale]);
+        let (mut om_r, mut dr) = anisotropic(&mut rng, [2e-5 * scale, 3e-5 * scale, 5e-5 * scale]);
+        if flat {
+            // knows z and tilt; x, y and yaw sit at their (wrong) initial value
+            om_t = Matrix3::from_diagonal(&Vector3::new(0.0, 0.0, 1.0 / (0.01 * scale).powi(2)));
+            dt = Vector3::new(
+                3.0 * rng.normal(),
+                3.0 * rng.normal(),
+                0.01 * scale * rng.normal(),
+            );
+            om_r = Matrix3::from_diagonal(&Vector3::new(
+                1.0 / (2e-5 * scale).powi(2),
+                1.0 / (2e-5 * scale).powi(2),
+                0.0,
+            ));
+            dr = Vector3::new(
+                2e-5 * scale * rng.normal(),
+                2e-5 * scale * rng.normal(),
+                0.01 * rng.normal(),
+            );
+        }
+        if rng.next_f64() < outlier_fraction {
+            dr += normal3(&mut rng, 1.0).normalize() * (2.0 + 8.0 * rng.next_f64()).to_radians();
+            dt += normal3(&mut rng, 1.0).normalize() * (2.0 + 18.0 * rng.next_f64());
+            outliers.push(k);
+        }
+        // noise about the centre: p -> Rn (p - c) + c + dt; measured M_ij = truth * noise^-1
+        // so that the residual M_i^-1 M_j c - M_ij c is +dt and the rotation one +dr.
+        let rn = rotation_from_axis_angle(&dr);
+        let noise = from_parts(&rn, &(c_j - rn * c_j + dt));
+        let m_ij = inverse_rigid(&truth[i]) * truth[j] * inverse_rigid(&noise);
+        edges.push(Edge {
+            centre_j: c_j,
+            ..Edge::new(i, j, m_ij, 0.5, 0.1)
+        });
+        information.push(EdgeInformation {
+            rotation: om_r,
+            translation: om_t,
+            reliable: true,
+        });
+    }
+    // the last node is reached by unreliable edges only
+    for (k, e) in edges.iter().enumerate() {
+        if e.j == n - 1 || e.i == n - 1 {
+            information[k].reliable = false;
+        }
+    }
+    Case {
+        graph: PoseGraph { n, edges },
+        information,
+        truth,
+        positions,
+        outliers,
+    }
+}
+
+/// Per-node errors in the mean gauge: shift at the node's position (m) and rotation
+/// vector (rad), about the node's axes.
+fn errors(
+    case: &Case,
+    result: &InformedResult,
+    members: &[usize],
+) -> Vec<(usize, Vector3<f64>, Vector3<f64>)> {
+    let mut truth = case.truth.clone();
+    let mut est = result.averaging.poses.clone();
+    crate::averaging::fix_gauge(&mut truth, members, None);
+    crate::averaging::fix_gauge(&mut est, members, None);
+    members
+        .iter()
+        .map(|&k| {
+            let p = apply(&inverse_rigid(&case.truth[k]), &case.positions[k]);
+            let shift = apply(&est[k], &p) - apply(&truth[k], &p);
+            let r = rotation_vector(&rotation(&truth[k]).tr_mul(&rotation(&est[k])));
+            (k, rotation(&truth[k]).transpose() * shift, r)
+        })
+        .collect()
+}
+
+/// NOT MET YET (2026-12-01): at 20 % outliers good edges of boundary nodes
+/// with two bad edges out of four are dropped (seed 1: nodes 3, 80, 90, 91 hang
+/// on one unchecked outlier edge); at 10 % a node is 0.011 deg off. Run with
+/// `--ignored` to see the state.
+#[test]
+#[ignore = "robustness to 20 % outliers not reached yet, see docs/pending/uncert.md"]
+fn anisotropic_edges_and_outliers_recover_the_poses() {
+    let mut within = [[0usize; 3]; 6];
+    let mut count = 0;
+    for seed in 1..=4 {
+        let case = case(10, seed, 0.2);
+        let result =
+            average_informed(&case.graph, &case.information, &InformedOptions::default()).unwrap();
+        // every gross outlier is gone or down-weighted
+        eprintln!(
+            "seed {seed}: {} outliers, dropped {}, down-weighted {}",
+            case.outliers.len(),
+            result.averaging.dropped_edges.len(),
+            result.averaging.downweighted_edges.len()
+        );
+        // ... unless no other kept edge checks it (a bridge: then the node behind
+        // it is not judged below; a known limit, see docs/pending/uncert.md)
+        let kept = |k: usize| !result.averaging.dropped_edges.contains(&k);
+        let mut unchecked_nodes = Vec::new();
+        for &k in &case.outliers {
+            let gone = !kept(k) || result.averaging.downweighted_edges.contains(&k);
+            if !gone {
+                let pairs = (0..case.graph.edges.len())
+                    .filter(|&m| m != k && kept(m))
+                    .map(|m| (case.graph.edges[m].i, case.graph.edges[m].j));
+                let parts = crate::graph::Components::new(case.graph.n, pairs);
+                let e = &case.graph.edges[k];
+                let (a, b) = (parts.component_of[e.i], parts.component_of[e.j]);
+                assert_ne!(
+                    a, b,
+                    "seed {seed}: outlier edge {k} kept, {:?}",
+                    result.mahalanobis[k]
+                );
+                let small = if parts.members[a].len() < parts.members[b].len() {
+                    a
+                } else {
+                    b
+                };
+                eprintln!(
+                    "seed {seed}: outlier edge {k} is the only kept edge to {:?}",
+                    parts.members[small]
+                );
+                unchecked_nodes.extend(parts.members[small].iter().copied());
+            }
+        }
+        assert!(
+            unchecked_nodes.len() <= 2,
+            "seed {seed}: {unchecked_nodes:?}"
+        );
+        // no kept edge has a rotation residual of degrees
+        for (k, r) in result.averaging.edge_residuals.iter().enumerate() {
+            if !result.averaging.dropped_edges.contains(&k)
+                && !result.averaging.downweighted_edges.contains(&k)
+            {
+                let om = case.information[k].rotation;
+                let v = r.rotation_rad.cast::<f64>();
+                let seen = (v.transpose() * om * v)[(0, 0)].sqrt();
+                assert!(seen < 10.0, "seed {seed}: edge {k} kept at {seen} sigma");
+            }
+        }
+        let n = case.graph.n;
+        assert_eq!(
+            result.status[n - 1],
+            NodeStatus::Unconstrained,
+            "seed {seed}"
+        );
+        let main: Vec<usize> = (0..n - 1)
+            .filter(|k| !unchecked_nodes.contains(k))
+            .collect();
+        assert!(result.status[..n - 1]
+            .iter()
+            .all(|s| *s != NodeStatus::Unconstrained));
+        for (k, shift, rot) in errors(&case, &result, &main) {
+            let s = result.sigma[k];
+            assert!(
+                shift.norm() < 0.5 && rot.norm().to_degrees() < 0.01,
+                "seed {seed} node {k}: {shift:?} {rot:?}"
+            );
+            for a in 0..3 {
+                let z = [
+                    shift[a] / s.shift_m[a],
+                    rot[a].to_degrees() / s.rotation_deg[a],
+                ];
+                for (axis, z) in [a, a + 3].into_iter().zip(z) {
+                    for (m, count) in within[axis].iter_mut().enumerate() {
+                        *count += usize::from(z.abs() <= (m + 1) as f64);
+                    }
+                }
+            }
+            count += 1;
+        }
+    }
+    for (axis, w) in within.iter().enumerate() {
+        let f = w.map(|c| c as f64 / count as f64);
+        eprintln!("axis {axis}: within 1/2/3 sigma {f:?} over {count} nodes");
+        assert!(
+            f[2] >= 0.98 && f[0] >= 0.55 && f[0] <= 0.85,
+            "axis {axis}: {f:?}"
+        );
+    }
+}

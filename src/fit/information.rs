@@ -1,0 +1,358 @@
+//! What a point-to-plane fit knows, direction by direction: the 6x6 information
+//! of its estimate, which directions it cannot see (degenerate: flat ground leaves
+//! x, y and yaw free; a single ridge one horizontal direction), and per-axis
+//! standard errors that are honest when neighbouring residuals are correlated.
+//!
+//! The covariance is the spatial-correlation-robust sandwich H^+ M H^+ (Conley
+//! 1999) with M = sum_{k,l} K(p_k - p_l) s_k s_l^T, s_k = w r a of one
+//! correspondence and K a product Bartlett kernel of bandwidth L in ground x, y
+//! (evaluated between sums over cells of L / 4): residuals closer than L (one
+//! building, one tree) may be correlated. With uncorrelated residuals it is about
+//! the usual sandwich; with correlated ones it grows by the
+//! effective-sample-count factor that the independent sandwich misses. A
+//! small-sample factor G / (G - 6), G = footprint area / L^2, accounts for the
+//! meat being estimated from few independent neighbourhoods.
+//!
+//! Degenerate directions are eigen-directions of the scale-normalised normal
+//! matrix H whose eigenvalue is below `min_relative_eigenvalue` times the largest,
+//! or whose standard error exceeds `max_sigma_m` (rotations count as the arc at the
+//! RMS radius of the points). The fit's update is projected onto the other
+//! directions ([`super::point_to_plane_with`]): the degenerate ones keep their
+//! initial value (solution remapping, Zhang & Singh 2016; X-ICP, Tuna et al. 2023).
+
+use super::{Correspondence, Model};
+use nalgebra::{DMatrix, Matrix6, SymmetricEigen, Vector3, Vector6};
+use std::collections::HashMap;
+
+/// One of the six pose parameters, in the order of [`FitInformation::info_6x6`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Axis {
+    X,
+    Y,
+    Z,
+    Roll,
+    Pitch,
+    Yaw,
+}
+
+impl Axis {
+    pub const ALL: [Axis; 6] = [
+        Axis::X,
+        Axis::Y,
+        Axis::Z,
+        Axis::Roll,
+        Axis::Pitch,
+        Axis::Yaw,
+    ];
+
+    /// Index in (x, y, z, roll, pitch, yaw) order.
+    pub fn index(self) -> usize {
+        self as usize
+    }
+
+    pub fn label(self) -> &'static str {
+        ["x", "y", "z", "roll", "pitch", "yaw"][self.index()]
+    }
+}
+
+/// When a direction counts as degenerate (see the module doc).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DegeneracyRule {
+    /// Eigenvalues of the scale-normalised H below this fraction of the largest.
+    pub min_relative_eigenvalue: f64,
+    /// Standard errors above this (metres; rotations as the arc at the RMS radius).
+    pub max_sigma_m: f64,
+    /// Distance over which residuals may be correlated (the kernel bandwidth),
+    /// metres; None: half the RMS radius of the points.
+    pub cluster_cell_m: Option<f64>,
+}
+
+impl DegeneracyRule {
+    /// Only numerically singular directions (the plain point-to-plane step).
+    pub const NUMERICAL: DegeneracyRule = DegeneracyRule {
+        min_relative_eigenvalue: 1e-10,
+        max_sigma_m: f64::INFINITY,
+        cluster_cell_m: None,
+    };
+}
+
+impl Default for DegeneracyRule {
+    /// Directions the fit pins to worse than 0.5 m, or 1e-6 of the best one.
+    fn default() -> Self {
+        DegeneracyRule {
+            min_relative_eigenvalue: 1e-6,
+            max_sigma_m: 0.5,
+            cluster_cell_m: None,
+        }
+    }
+}
+
+/// What a fit knows (see the module doc). Axes in (x, y, z, roll, pitch, yaw) order,
+/// translations in metres at the weighted centroid of the moving points, rotations
+/// in radians about axes through it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FitInformation {
+    /// Inverse covariance (m^-2, rad^-2) on the well-constrained subspace; zero
+    /// along degenerate directions and parameters the model does not estimate.
+    pub info_6x6: Matrix6<f64>,
+    /// Covariance on the well-constrained subspace (the pseudo-inverse of `info_6x6`).
+    pub covariance_6x6: Matrix6<f64>,
+    /// One-sigma standard errors: metres for x, y, z, degrees for roll, pitch, yaw;
+    /// None for degenerate axes and those the model does not estimate.
+    pub sigma: [Option<f64>; 6],
+    /// Axes that lie (by more than 10 % of their variance) in a degenerate direction.
+    pub degenerate: Vec<Axis>,
+    /// Where the translations are measured (the weighted centroid), metres.
+    pub centroid: Vector3<f64>,
+    /// Correspondences over the factor by which correlation inflates the variance
+    /// (trace of the clustered over the independent sandwich).
+    pub effective_samples: f64,
+}
+
+impl FitInformation {
+    pub fn sigma_of(&self, axis: Axis) -> Option<f64> {
+        self.sigma[axis.index()]
+    }
+
+    pub fn is_degenerate(&self, axis: Axis) -> bool {
+        self.degenerate.contains(&axis)
+    }
+}
+
+/// The normal equations of one point-to-plane step, scale-normalised: rotation
+/// columns divided by the RMS radius so all six compare like for like. Parameter
+/// order (rx, ry, rz, tx, ty, tz), as [`super::FitUpdate::weakest_direction`].
+pub(crate) struct NormalEquations {
+    pub h: Matrix6<f64>,
+    pub g: Vector6<f64>,
+    /// Independent sandwich meat sum (w r)^2 a a^T.
+    pub meat: Matrix6<f64>,
+    /// Clustered sandwich meat (see the module doc).
+    pub clustered: Matrix6<f64>,
+    pub centroid: Vector3<f64>,
+    pub radius_m: f64,
+}
+
+impl NormalEquations {
+    pub fn new(corrs: &[Correspondence], cell_m: Option<f64>) -> Option<Self> {
+        let total_w: f64 = corrs.iter().map(|c| c.weight).sum();
+        if corrs.len() < 6 || total_w <= 0.0 {
+            return None;
+        }
+        let centroid = corrs
+            .iter()
+            .map(|c| c.moving * c.weight)
+            .sum::<Vector3<f64>>()
+            / total_w;
+        let radius_m = (corrs
+            .iter()
+            .map(|c| c.weight * (c.moving - centroid).norm_squared())
+            .sum::<f64>()
+            / total_w)
+            .sqrt()
+            .max(1e-6);
+        let bandwidth = cell_m.unwrap_or(radius_m / 2.0).max(1e-9);
+        let cell = bandwidth / CELLS_PER_BANDWIDTH as f64;
+        let mut h = Matrix6::zeros();
+        let mut g = Vector6::zeros();
+        let mut meat = Matrix6::zeros();
+        let mut cells: HashMap<(i64, i64), Vector6<f64>> = HashMap::new();
+        for c in corrs {
+            let q = c.moving - centroid;
+            let a_rot = q.cross(&c.normal) / radius_m;
+            let a = Vector6::new(
+                a_rot.x, a_rot.y, a_rot.z, c.normal.x, c.normal.y, c.normal.z,
+            );
+            let r = c.plane_residual_m();
+            let aat = a * a.transpose();
+            h += c.weight * aat;
+            g += c.weight * r * a;
+            meat += (c.weight * r).powi(2) * aat;
+            let key = ((q.x / cell).floor() as i64, (q.y / cell).floor() as i64);
+            *cells.entry(key).or_insert_with(Vector6::zeros) += c.weight * r * a;
+        }
+        // Small-sample correction as CR1 of cluster-robust estimators, with one
+        // "cluster" per kernel footprint: the meat is estimated from few
+        // independent neighbourhoods, and from residuals, not errors.
+        let groups = cells.len() as f64 / (CELLS_PER_BANDWIDTH * CELLS_PER_BANDWIDTH) as f64;
+        let correction = groups / (groups - 6.0).max(1.0);
+        let clustered = bartlett_meat(&cells) * correction.max(1.0);
+        Some(NormalEquations {
+            h,
+            g,
+            meat,
+            clustered,
+            centroid,
+            radius_m,
+        })
+    }
+}
+
+/// Cells per kernel bandwidth: the kernel is evaluated between cell sums.
+const CELLS_PER_BANDWIDTH: i64 = 4;
+
+/// Spatial (Conley) sandwich meat: sum over cell pairs of K(c, d) S_c S_d^T with
+/// the product Bartlett kernel (1 - |dx| / L)(1 - |dy| / L), positive
+/// semi-definite, which reaches to the bandwidth L.
+fn bartlett_meat(cells: &HashMap<(i64, i64), Vector6<f64>>) -> Matrix6<f64> {
+    let reach = CELLS_PER_BANDWIDTH;
+    let kernel = |d: i64| 1.0 - d.abs() as f64 / reach as f64;
+    let mut meat = Matrix6::zeros();
+    for (&(cx, cy), s) in cells {
+        let mut near = Vector6::zeros();
+        for dx in -reach + 1..reach {
+            for dy in -reach + 1..reach {
+                if let Some(t) = cells.get(&(cx + dx, cy + dy)) {
+                    near += t * (kernel(dx) * kernel(dy));
+                }
+            }
+        }
+        meat += s * near.transpose();
+    }
+    (meat + meat.transpose()) * 0.5
+}
+
+/// The eigen-directions of H the fit keeps (true) and holds (false).
+pub(crate) fn constrained_directions(
+    eq: &NormalEquations,
+    model: Model,
+    rule: &DegeneracyRule,
+) -> (SymmetricEigen<f64, nalgebra::U6>, [bool; 6]) {
+    let h = restrict(&eq.h, model);
+    let eig = h.symmetric_eigen();
+    let max = eig.eigenvalues.max();
+    let mut keep = [false; 6];
+    for (k, kept) in keep.iter_mut().enumerate() {
+        *kept = max > 0.0 && eig.eigenvalues[k] > rule.min_relative_eigenvalue * max;
+    }
+    if rule.max_sigma_m.is_finite() {
+        let cov = sandwich(&eig, &keep, &restrict(&eq.clustered, model));
+        for (k, kept) in keep.iter_mut().enumerate() {
+            let v = eig.eigenvectors.column(k);
+            let sd = (v.transpose() * cov * v)[(0, 0)].max(0.0).sqrt();
+            if sd > rule.max_sigma_m {
+                *kept = false;
+            }
+        }
+    }
+    (eig, keep)
+}
+
+/// H restricted to what the model estimates (rotations zeroed for translation only).
+fn restrict(m: &Matrix6<f64>, model: Model) -> Matrix6<f64> {
+    let mut out = *m;
+    if model == Model::Translation {
+        for a in 0..6 {
+            for b in 0..6 {
+                if a < 3 || b < 3 {
+                    out[(a, b)] = 0.0;
+                }
+            }
+        }
+    }
+    out
+}
+
+/// The pseudo-inverse of H over the kept directions.
+pub(crate) fn pseudo_inverse(
+    eig: &SymmetricEigen<f64, nalgebra::U6>,
+    keep: &[bool; 6],
+) -> Matrix6<f64> {
+    let mut inv = Matrix6::zeros();
+    for k in (0..6).filter(|&k| keep[k]) {
+        let v = eig.eigenvectors.column(k);
+        inv += v * v.transpose() / eig.eigenvalues[k];
+    }
+    inv
+}
+
+fn sandwich(
+    eig: &SymmetricEigen<f64, nalgebra::U6>,
+    keep: &[bool; 6],
+    meat: &Matrix6<f64>,
+) -> Matrix6<f64> {
+    let inv = pseudo_inverse(eig, keep);
+    inv * meat * inv
+}
+
+/// What the fit of `corrs` (at its solution: the residuals are the final ones) knows.
+/// None when there are too few correspondences.
+pub fn fit_information(
+    corrs: &[Correspondence],
+    model: Model,
+    rule: &DegeneracyRule,
+) -> Option<FitInformation> {
+    let eq = NormalEquations::new(corrs, rule.cluster_cell_m)?;
+    let (eig, keep) = constrained_directions(&eq, model, rule);
+    let scaled = sandwich(&eig, &keep, &restrict(&eq.clustered, model));
+    let independent = sandwich(&eig, &keep, &restrict(&eq.meat, model));
+    // (rx, ry, rz, tx, ty, tz) scaled -> (x, y, z, roll, pitch, yaw) physical
+    let mut to_physical = Matrix6::zeros();
+    for k in 0..3 {
+        to_physical[(k, k + 3)] = 1.0;
+        to_physical[(k + 3, k)] = 1.0 / eq.radius_m;
+    }
+    let covariance = to_physical * scaled * to_physical.transpose();
+    let mut held = Matrix6::zeros();
+    for k in (0..6).filter(|&k| !keep[k]) {
+        let v = to_physical_direction(&eig.eigenvectors.column(k).into_owned());
+        held += v * v.transpose();
+    }
+    let estimated = |axis: usize| model == Model::Rigid || axis < 3;
+    let degenerate: Vec<Axis> = Axis::ALL
+        .into_iter()
+        .filter(|a| estimated(a.index()) && held[(a.index(), a.index())] > 0.1)
+        .collect();
+    let mut sigma = [None; 6];
+    for a in Axis::ALL {
+        let k = a.index();
+        if estimated(k) && !degenerate.contains(&a) {
+            let sd = covariance[(k, k)].max(0.0).sqrt();
+            sigma[k] = Some(if k < 3 { sd } else { sd.to_degrees() });
+        }
+    }
+    let info = {
+        let inverse = to_physical.try_inverse().unwrap_or_else(Matrix6::zeros);
+        inverse.transpose() * kept_inverse(&eig, &keep, &scaled) * inverse
+    };
+    let ratio = scaled.trace() / independent.trace().max(f64::MIN_POSITIVE);
+    Some(FitInformation {
+        info_6x6: info,
+        covariance_6x6: covariance,
+        sigma,
+        degenerate,
+        centroid: eq.centroid,
+        effective_samples: corrs.len() as f64 / ratio.max(1e-12),
+    })
+}
+
+/// A scaled (rx, ry, rz, tx, ty, tz) direction in (x, y, z, roll, pitch, yaw) order,
+/// unit length, comparing rotations as arcs at the RMS radius.
+fn to_physical_direction(v: &Vector6<f64>) -> Vector6<f64> {
+    Vector6::new(v[3], v[4], v[5], v[0], v[1], v[2])
+}
+
+/// The inverse of `cov` on the span of the kept eigen-directions (zero elsewhere).
+fn kept_inverse(
+    eig: &SymmetricEigen<f64, nalgebra::U6>,
+    keep: &[bool; 6],
+    cov: &Matrix6<f64>,
+) -> Matrix6<f64> {
+    let kept: Vec<usize> = (0..6).filter(|&k| keep[k]).collect();
+    if kept.is_empty() {
+        return Matrix6::zeros();
+    }
+    let u = DMatrix::from_fn(6, kept.len(), |r, c| eig.eigenvectors[(r, kept[c])]);
+    let cov = DMatrix::from_fn(6, 6, |r, c| cov[(r, c)]);
+    let reduced = u.transpose() * &cov * &u;
+    let Some(inverse) = reduced.try_inverse() else {
+        return Matrix6::zeros();
+    };
+    let full = &u * inverse * u.transpose();
+    Matrix6::from_fn(|r, c| full[(r, c)])
+}
+
+#[cfg(test)]
+#[path = "information_tests.rs"]
+mod tests;
