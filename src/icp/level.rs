@@ -239,6 +239,7 @@ impl LevelOutcome {
             status: self.status,
             constraint_ratio: self.constraint_ratio,
             sigma: self.sigma,
+            information: None,
             nn: NnStatsSummary {
                 queries: self.nn.queries,
                 pixels_visited: self.nn.pixels_visited,

@@ -4,7 +4,7 @@
 use nalgebra::Isometry3;
 use serde::Serialize;
 
-use crate::fit::FitSigma;
+use crate::fit::{FitInformation, FitSigma};
 
 /// How a registration ended.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, serde::Deserialize)]
@@ -44,6 +44,11 @@ pub struct IcpResult {
     /// metrics; zero for point-to-point), in the local frame at the overlap.
     #[serde(default)]
     pub sigma: FitSigma,
+    /// The final fit's information, standard errors per axis and degenerate
+    /// directions, about `FitInformation::centroid` in the world frame
+    /// (None until the ICP computes it).
+    #[serde(skip)]
+    pub information: Option<FitInformation>,
     pub nn: NnStatsSummary,
 }
 
