@@ -132,7 +132,11 @@ pub fn require_writable_dir(path: &Path) -> anyhow::Result<()> {
             let _ = std::fs::remove_file(&probe);
             Ok(())
         }
-        Err(e) => Err(InputError::new(format!("{}: cannot write here: {e}", dir.display())).into()),
+        Err(e) => Err(InputError::new(format!(
+            "{}: the store is read-only for this user ({e})",
+            dir.display()
+        ))
+        .into()),
     }
 }
 
