@@ -98,6 +98,7 @@ fn run_collection(data_dir: &Path, work: &Path) -> anyhow::Result<()> {
             min_overlap: 0.1,
             anchor: None,
             resume: false,
+            fresh: true,
             icp: IcpArgs::default(),
         })?;
         rows.push((graph, PosesFile::read(&out)?));
@@ -170,6 +171,7 @@ fn fuse_and_eval(
         gsd: None,
         method: FuseMethod::Median,
         per_dsm: None,
+        force: true,
         resources: ResourceArgs::default(),
     })?;
     emit_line(&format!(
