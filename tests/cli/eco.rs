@@ -233,3 +233,105 @@ fn per_dsm_outputs_sit_on_the_mosaic_lattice() {
         }
     }
 }
+
+#[test]
+fn ingest_reads_an_input_list_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let chain4 = fixtures().join("synth/chain4");
+    let list = dir.path().join("list.txt");
+    let lines = format!(
+        "# two of the four tiles\n{}\n\n  {}  \n",
+        chain4.join("tile_00.tif").display(),
+        chain4.join("tile_02.tif").display()
+    );
+    std::fs::write(&list, lines).unwrap();
+    let store = dir.path().join("s.zarr");
+    let at_list = format!("@{}", list.display());
+    let out = ok(run(&[&"ingest", &at_list, &"--store", &store]));
+    let summary = text(&out.stdout);
+    assert!(summary.contains("2 ingested"), "{summary}");
+    let info = ok(run(&[&"info", &store]));
+    let listing = text(&info.stdout);
+    assert!(
+        listing.contains("tile_02") && !listing.contains("tile_01"),
+        "{listing}"
+    );
+    let missing = format!("@{}", dir.path().join("none.txt").display());
+    let refused = run(&[&"ingest", &missing, &"--store", &store]);
+    assert_eq!(refused.status.code(), Some(2));
+    assert!(
+        text(&refused.stderr).contains("none.txt"),
+        "{}",
+        text(&refused.stderr)
+    );
+}
+
+#[test]
+fn ingest_reports_a_mixed_vertical_reference() {
+    use dsmstream::geotiff::writer::{write_geotiff_f32, CogOptions};
+    use dsmstream::raster::{Crs, GeoTransform};
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("in");
+    std::fs::create_dir(&data).unwrap();
+    // Projected EPSG:32617, one with VerticalCSTypeGeoKey 5703 (NAVD88 height).
+    let keys = |vertical: bool| {
+        let mut k: Vec<u16> = vec![1, 1, 0, 3, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, 32617];
+        if vertical {
+            k[3] = 4;
+            k.extend([4096, 0, 1, 5703]);
+        }
+        k
+    };
+    for (name, vertical) in [("geoid", true), ("plain", false)] {
+        let options = CogOptions {
+            geotransform: GeoTransform::north_up(500_000.0, 4_800_000.0, 1.0, 1.0),
+            crs: Crs {
+                epsg: Some(32617),
+                geokeys: keys(vertical),
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        write_geotiff_f32(
+            &data.join(format!("{name}.tif")),
+            32,
+            32,
+            options,
+            &[100.0; 1024],
+        )
+        .unwrap();
+    }
+    let store = dir.path().join("s.zarr");
+    let out = ok(run(&[&"ingest", &data, &"--store", &store]));
+    let err = text(&out.stderr);
+    assert!(
+        err.contains("mixed vertical reference (EPSG:5703: geoid; none: plain)"),
+        "{err}"
+    );
+    // One reference for all: no warning.
+    std::fs::remove_file(data.join("plain.tif")).unwrap();
+    let other = dir.path().join("t.zarr");
+    let out = ok(run(&[&"ingest", &data, &"--store", &other]));
+    assert!(
+        !text(&out.stderr).contains("vertical"),
+        "{}",
+        text(&out.stderr)
+    );
+}
+
+#[test]
+fn demo_runs_from_any_directory_and_removes_its_temporary_folder() {
+    let cwd = tempfile::tempdir().unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let out = ok(bin()
+        .arg("demo")
+        .current_dir(cwd.path())
+        .env("TMPDIR", tmp.path())
+        .output()
+        .unwrap());
+    let stdout = text(&out.stdout);
+    assert!(stdout.contains("=== 2. real terrain"), "{stdout}");
+    let left: Vec<_> = std::fs::read_dir(tmp.path()).unwrap().collect();
+    assert!(left.is_empty(), "left in the temp dir: {left:?}");
+    assert!(std::fs::read_dir(cwd.path()).unwrap().next().is_none(), "wrote into the cwd");
+}
