@@ -333,5 +333,8 @@ fn demo_runs_from_any_directory_and_removes_its_temporary_folder() {
     assert!(stdout.contains("=== 2. real terrain"), "{stdout}");
     let left: Vec<_> = std::fs::read_dir(tmp.path()).unwrap().collect();
     assert!(left.is_empty(), "left in the temp dir: {left:?}");
-    assert!(std::fs::read_dir(cwd.path()).unwrap().next().is_none(), "wrote into the cwd");
+    assert!(
+        std::fs::read_dir(cwd.path()).unwrap().next().is_none(),
+        "wrote into the cwd"
+    );
 }
