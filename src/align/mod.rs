@@ -77,6 +77,8 @@ pub struct AlignOutcome {
     pub components: Vec<Vec<String>>,
     pub weights: WeightsUsed,
     pub counts: EdgeCounts,
+    /// Pairs taken from the journal of an earlier run instead of registered.
+    pub reused_pairs: usize,
     _lock: OutputLock,
 }
 
@@ -97,6 +99,7 @@ pub fn align(
 ) -> Result<AlignOutcome, AlignError> {
     let plan = setup::plan(store, config)?;
     let (lock, mut journal, done) = setup::open_journal(store, &plan, config)?;
+    let reused_pairs = done.len();
     let outcomes = pipeline::run(
         store,
         cache,
@@ -122,6 +125,7 @@ pub fn align(
         components: report::component_ids(store, &solution),
         weights: scene.weights.clone(),
         counts: report::edge_counts(&scene, &solution),
+        reused_pairs,
         _lock: lock,
     })
 }

@@ -5,7 +5,7 @@
 use std::collections::HashSet;
 
 use super::{AlignConfig, AlignError};
-use crate::journal::{DsmIds, Journal, OutputLock};
+use crate::journal::{DsmIds, Journal, JournalError, OutputLock};
 use crate::pipeline::{PairOutcome, PairTask};
 use crate::plan::{candidate_pairs, Footprint};
 use crate::store::Store;
@@ -84,8 +84,9 @@ fn check_output(output: &std::path::Path) -> Result<(), AlignError> {
     Ok(())
 }
 
-/// Takes the output lock, then opens the journal: a fresh one, or with
-/// `--resume` the existing one and the pairs it already holds.
+/// Takes the output lock, then opens the journal: a fresh one, or when resuming
+/// (the default) the existing one and the pairs it already holds; a journal
+/// written with other settings is refused with a hint (`--fresh`).
 pub fn open_journal(
     store: &Store,
     plan: &AlignPlan,
@@ -106,7 +107,14 @@ pub fn open_journal(
             ids,
             &|p| planned.contains(&p),
             config.pipeline.min_overlap,
-        )?
+        )
+        .map_err(|e| match e {
+            JournalError::Mismatch { path, .. } => AlignError::Input(format!(
+                "{path}: the journal of an earlier run used other ICP settings or \
+                 --min-overlap; run again with those to reuse its pairs, or add --fresh to start over"
+            )),
+            e => e.into(),
+        })?
     } else {
         (Journal::create(&path, &settings, ids)?, Vec::new())
     };

@@ -11,7 +11,7 @@ use dsmstream::pipeline::PipelineConfig;
 use dsmstream::poses::GraphKind;
 use dsmstream::InputError;
 
-use super::common::{emit_line, open_store, progress_bar, warn_line, ResourceArgs};
+use super::common::{emit_line, open_store, progress_bar, quiet, warn_line, ResourceArgs};
 use super::icp_args::IcpArgs;
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug)]
@@ -52,9 +52,13 @@ pub struct Args {
     /// Keep this DSM fixed (identity pose) instead of the mean gauge.
     #[arg(long)]
     pub anchor: Option<String>,
-    /// Skip pairs already in the journal (<out>.journal) of an interrupted run.
-    #[arg(long)]
+    /// Skip pairs already in the journal (<out>.journal) of an earlier run with
+    /// the same settings (the default; kept for scripts).
+    #[arg(long, conflicts_with = "fresh")]
     pub resume: bool,
+    /// Start over: discard the journal of an earlier run.
+    #[arg(long)]
+    pub fresh: bool,
     #[command(flatten)]
     pub icp: IcpArgs,
 }
@@ -86,7 +90,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             WeightsArg::Paper => Weighting::Paper,
         },
         anchor: args.anchor.clone(),
-        resume: args.resume,
+        resume: !args.fresh,
         output: args.out.clone(),
     };
     tracing::info!(
@@ -128,6 +132,13 @@ fn print_summary(
     out: &std::path::Path,
     seconds: f64,
 ) -> std::io::Result<()> {
+    if outcome.reused_pairs > 0 && !quiet() {
+        eprintln!(
+            "resumed: {} pairs reused from {} (--fresh starts over)",
+            outcome.reused_pairs,
+            dsmstream::journal::Journal::path_for(out).display()
+        );
+    }
     for f in &outcome.failed_pairs {
         warn_line(&format!(
             "pair {}-{} ({}) gave no edge",

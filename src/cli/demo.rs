@@ -34,7 +34,8 @@ pub struct Args {
     /// fixtures/real/ttp2015/ttp_dsm_source.tif.
     #[arg(long)]
     pub data: Option<PathBuf>,
-    /// Working folder (default: a new folder under the system temp dir).
+    /// Working folder, kept afterwards (default: a new folder under the system
+    /// temp dir, removed at the end).
     #[arg(long)]
     pub work: Option<PathBuf>,
 }
@@ -42,16 +43,47 @@ pub struct Args {
 const SYNTH_CHAIN: &str = "fixtures/synth/chain4";
 const TTP_SOURCE: &str = "fixtures/real/ttp2015/ttp_dsm_source.tif";
 
+/// A bundled fixture: relative to the current directory when run from the
+/// repository, else relative to the source tree the binary was built from.
+fn fixture(relative: &str) -> PathBuf {
+    let here = PathBuf::from(relative);
+    if here.exists() {
+        return here;
+    }
+    Path::new(env!("CARGO_MANIFEST_DIR")).join(relative)
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
     let work = args.work.clone().unwrap_or_else(|| {
         std::env::temp_dir().join(format!("dsmstream-demo-{}", std::process::id()))
     });
     std::fs::create_dir_all(&work).with_context(|| format!("creating {}", work.display()))?;
+    let result = run_in(&args, &work);
+    if args.work.is_none() {
+        // the temporary folder goes, whatever happened; --work keeps it
+        let _ = std::fs::remove_dir_all(&work);
+    } else if result.is_ok() {
+        emit_line(&format!("\nfiles in {}", work.display()))?;
+    }
+    result
+}
+
+fn run_in(args: &Args, work: &Path) -> anyhow::Result<()> {
     if let Some(data) = &args.data {
-        return run_collection(data, &work);
+        return run_collection(data, work);
+    }
+    let (chain, ttp) = (fixture(SYNTH_CHAIN), fixture(TTP_SOURCE));
+    for path in [&chain, &ttp] {
+        if !path.exists() {
+            return Err(InputError::new(format!(
+                "{}: bundled fixture not found (run from the repository, or give --data)",
+                path.display()
+            ))
+            .into());
+        }
     }
     emit_line(&format!("=== 1. generated city tiles ({SYNTH_CHAIN})"))?;
-    run_collection(Path::new(SYNTH_CHAIN), &work.join("synth"))?;
+    run_collection(&chain, &work.join("synth"))?;
     let real = work.join("ttp2015");
     let tiles = real.join("tiles");
     emit_line(&format!(
@@ -66,11 +98,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         anchor_first: true,
         ..CutParams::default()
     };
-    cut_collection(Path::new(TTP_SOURCE), &params, &tiles, 256)
+    cut_collection(&ttp, &params, &tiles, 256)
         .map_err(|e| anyhow::Error::new(InputError::new(e.to_string())))?;
-    run_collection(&tiles, &real)?;
-    emit_line(&format!("\nfiles in {}", work.display()))?;
-    Ok(())
+    run_collection(&tiles, &real)
 }
 
 /// ingest → align full/mst → fuse → eval of one folder with a truth.json.
@@ -98,6 +128,7 @@ fn run_collection(data_dir: &Path, work: &Path) -> anyhow::Result<()> {
             min_overlap: 0.1,
             anchor: None,
             resume: false,
+            fresh: true,
             icp: IcpArgs::default(),
         })?;
         rows.push((graph, PosesFile::read(&out)?));
@@ -170,6 +201,7 @@ fn fuse_and_eval(
         gsd: None,
         method: FuseMethod::Median,
         per_dsm: None,
+        force: true,
         resources: ResourceArgs::default(),
     })?;
     emit_line(&format!(

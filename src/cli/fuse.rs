@@ -1,10 +1,12 @@
 //! `dsmstream fuse <store> --poses poses.json --out fused.tif`: the registered
 //! mosaic as a Cloud-Optimized GeoTIFF (and `--per-dsm DIR`: each corrected DSM
-//! on its own), with a progress bar over tiles.
+//! on its own), with a progress bar over tiles. Existing outputs are kept unless
+//! `--force`.
 
 use std::path::PathBuf;
 
 use dsmstream::fuse::{fuse, fuse_per_dsm, FuseConfig, FuseError, FuseMethod, PoseSet, TILE_SIZE};
+use dsmstream::InputError;
 
 use super::common::{classify, emit_line, open_store, progress_bar, require_file, ResourceArgs};
 
@@ -28,6 +30,9 @@ pub struct Args {
     /// Also write each corrected DSM alone as DIR/<id>.tif.
     #[arg(long)]
     pub per_dsm: Option<PathBuf>,
+    /// Replace output files that already exist (refused otherwise).
+    #[arg(long)]
+    pub force: bool,
     #[command(flatten)]
     pub resources: ResourceArgs,
 }
@@ -37,6 +42,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         require_file(p, "--poses")?;
     }
     let store = open_store(&args.store)?;
+    if !args.force {
+        refuse_existing(&args, &store)?;
+    }
     let poses = match &args.poses {
         Some(p) => PoseSet::from_file(&store, p).map_err(to_anyhow)?,
         None => PoseSet::identity(&store),
@@ -92,6 +100,24 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "cache reported"
     );
     Ok(())
+}
+
+/// Exit 2 naming the first output that exists already.
+fn refuse_existing(args: &Args, store: &dsmstream::store::Store) -> anyhow::Result<()> {
+    let per_dsm = args.per_dsm.iter().flat_map(|dir| {
+        store
+            .dsms()
+            .iter()
+            .map(move |d| dir.join(format!("{}.tif", d.id)))
+    });
+    match args.out.iter().cloned().chain(per_dsm).find(|p| p.exists()) {
+        Some(p) => Err(InputError::new(format!(
+            "{}: exists already; add --force to replace it",
+            p.display()
+        ))
+        .into()),
+        None => Ok(()),
+    }
 }
 
 fn to_anyhow(e: FuseError) -> anyhow::Error {

@@ -7,13 +7,16 @@ use std::path::PathBuf;
 
 use dsmstream::store::ingest::{DsmAction, DsmOutcome, IngestProgress};
 use dsmstream::store::{ingest, Compression, IngestOptions, StorageSettings};
+use dsmstream::InputError;
 use tracing_indicatif::span_ext::IndicatifSpanExt;
 
-use super::common::{classify, emit_line, quiet, require_writable_dir};
+use super::common::{classify, emit_line, quiet, require_writable_dir, warn_line};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// GeoTIFF files, or directories whose *.tif / *.tiff files are all taken.
+    /// GeoTIFF files, directories whose *.tif / *.tiff files are all taken, or
+    /// @LIST: a text file naming one input per line (blank lines and # comments
+    /// skipped; relative paths from the current directory).
     #[arg(required = true)]
     pub inputs: Vec<PathBuf>,
     /// The store directory (created if absent), e.g. collection.zarr.
@@ -96,6 +99,89 @@ fn summary_line(o: &DsmOutcome) -> String {
     )
 }
 
+/// GeoTIFF VerticalCSTypeGeoKey and VerticalCitationGeoKey.
+const VERTICAL_CS_KEY: u16 = 4096;
+const VERTICAL_CITATION_KEY: u16 = 4097;
+
+/// What a DSM's CRS says about its heights: "EPSG:<code>", "declared" (a
+/// vertical citation or a compound WKT without a code), or "none".
+fn vertical_reference(crs: &dsmstream::raster::Crs) -> String {
+    let keys = &crs.geokeys;
+    let n = keys
+        .get(3)
+        .map_or(0, |&n| n as usize)
+        .min(keys.len().saturating_sub(4) / 4);
+    let entry = |id: u16| {
+        (0..n)
+            .map(|i| &keys[4 + 4 * i..8 + 4 * i])
+            .find(|e| e[0] == id)
+    };
+    if let Some(e) = entry(VERTICAL_CS_KEY).filter(|e| e[1] == 0 && e[3] != 32767) {
+        return format!("EPSG:{}", e[3]);
+    }
+    let wkt = crs.wkt.as_deref().unwrap_or("");
+    let compound = ["VERTCRS", "VERT_CS", "COMPD_CS", "COMPOUNDCRS"]
+        .iter()
+        .any(|k| wkt.contains(k));
+    if entry(VERTICAL_CS_KEY).is_some() || entry(VERTICAL_CITATION_KEY).is_some() || compound {
+        return "declared".to_string();
+    }
+    "none".to_string()
+}
+
+/// Warns when the store's DSMs do not all state the same vertical reference
+/// (say ellipsoidal heights for one, nothing for another): their heights may
+/// differ by the geoid undulation, tens of metres, which registration absorbs
+/// as a vertical shift.
+fn warn_mixed_vertical(store: &std::path::Path) {
+    let Ok(store) = dsmstream::store::Store::open(store) else {
+        return;
+    };
+    let mut groups: std::collections::BTreeMap<String, Vec<&str>> = Default::default();
+    for d in store.dsms() {
+        groups
+            .entry(vertical_reference(&d.crs))
+            .or_default()
+            .push(&d.id);
+    }
+    if groups.len() > 1 {
+        let parts: Vec<String> = groups
+            .iter()
+            .map(|(v, ids)| format!("{v}: {}", ids.join(", ")))
+            .collect();
+        warn_line(&format!(
+            "mixed vertical reference ({}); heights may differ by the geoid undulation",
+            parts.join("; ")
+        ));
+    }
+}
+
+/// The inputs with every `@LIST` replaced by the paths it names.
+fn expand_lists(inputs: &[PathBuf]) -> Result<Vec<PathBuf>, InputError> {
+    let mut out = Vec::with_capacity(inputs.len());
+    for input in inputs {
+        let Some(list) = input.to_str().and_then(|s| s.strip_prefix('@')) else {
+            out.push(input.clone());
+            continue;
+        };
+        let text = std::fs::read_to_string(list)
+            .map_err(|e| InputError::new(format!("{list}: cannot read the input list ({e})")))?;
+        let before = out.len();
+        out.extend(
+            text.lines()
+                .map(str::trim)
+                .filter(|l| !l.is_empty() && !l.starts_with('#'))
+                .map(PathBuf::from),
+        );
+        if out.len() == before {
+            return Err(InputError::new(format!(
+                "{list}: the input list names no file"
+            )));
+        }
+    }
+    Ok(out)
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
     let options = IngestOptions {
         storage: StorageSettings {
@@ -106,9 +192,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         force: args.force,
     };
     require_writable_dir(&args.store)?;
+    let inputs = expand_lists(&args.inputs)?;
     let progress = BarProgress::default();
-    let report = ingest(&args.inputs, &args.store, &options, &progress)
+    let report = ingest(&inputs, &args.store, &options, &progress)
         .map_err(|e| classify(e, |e| e.is_bad_input()))?;
+    warn_mixed_vertical(&args.store);
     let count = |a: DsmAction| report.outcomes.iter().filter(|o| o.action == a).count();
     emit_line(&format!(
         "{}: {} ingested, {} replaced, {} skipped",

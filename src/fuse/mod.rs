@@ -8,7 +8,8 @@
 //! reads through the shared chunk cache, and the compressed tiles go to the
 //! [`CogWriter`] in that same order, so the file does not depend on the thread
 //! count and memory is the cache budget plus a few tiles per thread.
-//! `fuse_per_dsm` writes each corrected DSM alone on its own grid.
+//! `fuse_per_dsm` writes each corrected DSM alone on its own extent, on the
+//! mosaic's cell and lattice.
 
 pub mod corrected;
 pub mod layout;
@@ -144,11 +145,23 @@ pub fn fuse(
     progress: Progress,
 ) -> Result<FuseReport, FuseError> {
     let all: Vec<usize> = (0..store.dsms().len()).collect();
-    write_raster(store, cache, poses, config, &all, out, progress)
+    write_raster(
+        store,
+        cache,
+        poses,
+        config,
+        Which {
+            dsms: &all,
+            lattice: &all,
+        },
+        out,
+        progress,
+    )
 }
 
 /// Write each corrected DSM alone as `<dir>/<id>.tif`, on its own corrected
-/// footprint at its own cell (or `gsd_m`). Files written before an error are removed.
+/// footprint, at the mosaic's cell (or `gsd_m`) and on the mosaic's lattice.
+/// Files written before an error are removed.
 pub fn fuse_per_dsm(
     store: &Store,
     cache: &ChunkCache,
@@ -163,9 +176,21 @@ pub fn fuse_per_dsm(
         source,
     })?;
     let mut reports: Vec<FuseReport> = Vec::new();
+    let all: Vec<usize> = (0..store.dsms().len()).collect();
     for (index, meta) in store.dsms().iter().enumerate() {
         let path = dir.join(format!("{}.tif", meta.id));
-        match write_raster(store, cache, poses, config, &[index], &path, progress) {
+        match write_raster(
+            store,
+            cache,
+            poses,
+            config,
+            Which {
+                dsms: &[index],
+                lattice: &all,
+            },
+            &path,
+            progress,
+        ) {
             Ok(r) => reports.push(r),
             Err(e) => {
                 for r in &reports {
@@ -185,14 +210,34 @@ pub fn plan_grid(
     dsms: &[usize],
     gsd_m: Option<f64>,
 ) -> Option<(OutputGrid, Vec<PlacedDsm>)> {
+    plan_grid_on(store, poses, dsms, dsms, gsd_m)
+}
+
+/// The output grid covering `dsms`, its cell (unless `gsd_m`) and lattice those
+/// of the finest DSM of `lattice`: per-DSM outputs on the mosaic's lattice
+/// line up pixel for pixel with the mosaic and each other (as `gdalwarp -tap`).
+pub fn plan_grid_on(
+    store: &Store,
+    poses: &PoseSet,
+    dsms: &[usize],
+    lattice: &[usize],
+    gsd_m: Option<f64>,
+) -> Option<(OutputGrid, Vec<PlacedDsm>)> {
     let placed: Vec<PlacedDsm> = dsms
         .iter()
         .map(|&i| PlacedDsm::new(i, &store.dsms()[i], &poses.poses[i]))
         .collect();
     let bounds = layout::union_bounds(placed.iter().map(|p| p.corrected_bounds))?;
-    let (finest, anchor) = layout::finest_lattice(store, dsms)?;
+    let (finest, anchor) = layout::finest_lattice(store, lattice)?;
     let grid = OutputGrid::covering(bounds, gsd_m.unwrap_or(finest), anchor);
     Some((grid, placed))
+}
+
+/// The DSMs a raster holds, and those whose finest cell sets its lattice.
+#[derive(Clone, Copy)]
+struct Which<'a> {
+    dsms: &'a [usize],
+    lattice: &'a [usize],
 }
 
 fn write_raster(
@@ -200,10 +245,11 @@ fn write_raster(
     cache: &ChunkCache,
     poses: &PoseSet,
     config: &FuseConfig,
-    dsms: &[usize],
+    which: Which<'_>,
     out: &Path,
     progress: Progress,
 ) -> Result<FuseReport, FuseError> {
+    let Which { dsms, lattice } = which;
     if let Some(g) = config.gsd_m {
         if !(g.is_finite() && g > 0.0) {
             return Err(FuseError::Input(format!(
@@ -212,12 +258,13 @@ fn write_raster(
         }
     }
     let started = Instant::now();
-    let (grid, placed) = plan_grid(store, poses, dsms, config.gsd_m).ok_or_else(|| {
-        FuseError::Input(format!(
-            "{}: the store holds no DSM",
-            store.root().display()
-        ))
-    })?;
+    let (grid, placed) =
+        plan_grid_on(store, poses, dsms, lattice, config.gsd_m).ok_or_else(|| {
+            FuseError::Input(format!(
+                "{}: the store holds no DSM",
+                store.root().display()
+            ))
+        })?;
     limits::check_mosaic(store, poses, &placed, &grid, cache.budget_bytes())?;
     let removed = crate::atomic::remove_stale_siblings(out, &[".spill-", ".tmp-"]);
     if removed > 0 {

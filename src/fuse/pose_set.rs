@@ -1,4 +1,5 @@
-//! The poses of every DSM of a store, by store index: read from poses.json and
+//! The poses of every DSM of a store, by store index: read from poses.json (or any
+//! file with `{"poses": [{"id", "matrix_world"}]}`, see [`PoseList`]) and
 //! checked against the store (every DSM has exactly one pose, no pose names an
 //! unknown DSM, same CRS), or the identity for the raw collection.
 
@@ -7,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use super::corrected::PoseXf;
 use super::FuseError;
-use crate::poses::PosesFile;
+use crate::poses::{PoseList, PosesFile};
 use crate::store::Store;
 
 /// One pose per DSM of the store (index = store index).
@@ -16,7 +17,8 @@ pub struct PoseSet {
     /// The file the poses came from; None for the identity set.
     pub source: Option<PathBuf>,
     pub poses: Vec<PoseXf>,
-    /// The parsed file (edges and their residuals, for plots).
+    /// The parsed file (edges and their residuals, for plots) when it is a
+    /// complete poses.json.
     pub file: Option<PosesFile>,
 }
 
@@ -32,19 +34,23 @@ impl PoseSet {
 
     /// Read `path` and match its poses to the store's DSMs by id.
     pub fn from_file(store: &Store, path: &Path) -> Result<PoseSet, FuseError> {
-        let file = PosesFile::read(path)?;
-        PoseSet::from_parsed(store, path, file)
+        let list = PoseList::read(path)?;
+        PoseSet::from_list(store, path, list)
     }
 
-    /// Match an already parsed file (named `path` in messages) to the store.
+    /// Match an already parsed poses.json (named `path` in messages) to the store.
     pub fn from_parsed(store: &Store, path: &Path, file: PosesFile) -> Result<PoseSet, FuseError> {
+        PoseSet::from_list(store, path, PoseList::from(file))
+    }
+
+    /// Match already read poses (named `path` in messages) to the store.
+    pub fn from_list(store: &Store, path: &Path, file: PoseList) -> Result<PoseSet, FuseError> {
         let bad = |m: String| FuseError::Input(format!("{}: {m}", path.display()));
-        if let Some(crs) = store.crs() {
+        if let (Some(crs), Some(file_crs)) = (store.crs(), &file.crs) {
             let label = crs.label();
-            if !file.crs.is_empty() && file.crs != label {
+            if *file_crs != label {
                 return Err(bad(format!(
-                    "poses are for CRS {} but the store {} is {label}",
-                    file.crs,
+                    "poses are for CRS {file_crs} but the store {} is {label}",
                     store.root().display()
                 )));
             }
@@ -72,7 +78,7 @@ impl PoseSet {
         Ok(PoseSet {
             source: Some(path.to_path_buf()),
             poses,
-            file: Some(file),
+            file: file.full,
         })
     }
 

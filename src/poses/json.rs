@@ -2,8 +2,8 @@
 //! pose and one edge per line, atomic replacement, shortest round-trip digits.
 
 use super::{
-    rigid, EdgeEntry, GaugeLabel, GraphKind, PoseEntry, PosesError, PosesFile, PosesSummary,
-    RIGIDITY_TOLERANCE,
+    rigid, EdgeEntry, GaugeLabel, GraphKind, PoseEntry, PoseList, PosesError, PosesFile,
+    PosesSummary, RIGIDITY_TOLERANCE,
 };
 use nalgebra::Matrix4;
 use serde::{Deserialize, Serialize};
@@ -24,6 +24,14 @@ struct RawFile {
     components: Option<Vec<Vec<String>>>,
     #[serde(default)]
     summary: Option<PosesSummary>,
+}
+
+/// The lenient mirror: only the poses are required; unknown fields are ignored.
+#[derive(Deserialize)]
+struct RawPoseList {
+    #[serde(default)]
+    crs: Option<String>,
+    poses: Vec<RawPose>,
 }
 
 #[derive(Serialize, Deserialize)]
@@ -158,23 +166,7 @@ fn write_list<T: Serialize>(
 }
 
 fn from_raw(raw: RawFile) -> Result<PosesFile, String> {
-    let mut poses = Vec::with_capacity(raw.poses.len());
-    for p in raw.poses {
-        let rows = &p.matrix_world;
-        if rows.len() != 4 || rows.iter().any(|r| r.len() != 4) {
-            let shape: Vec<String> = rows.iter().map(|r| r.len().to_string()).collect();
-            return Err(format!(
-                "pose {}: matrix_world must be 4x4 (rows of {} values)",
-                p.id,
-                shape.join(", ")
-            ));
-        }
-        let matrix_world = Matrix4::from_fn(|r, c| rows[r][c]);
-        poses.push(PoseEntry {
-            id: p.id,
-            matrix_world,
-        });
-    }
+    let poses = poses_from_raw(raw.poses)?;
     let gauge = GaugeLabel::parse(&raw.gauge).ok_or_else(|| {
         format!(
             "gauge must be \"mean\" or \"anchor:<id>\", not {:?}",
@@ -192,6 +184,64 @@ fn from_raw(raw: RawFile) -> Result<PosesFile, String> {
     };
     file.validate()?;
     Ok(file)
+}
+
+/// The poses as matrices, each checked for its 4x4 shape (not yet for rigidity).
+fn poses_from_raw(raw: Vec<RawPose>) -> Result<Vec<PoseEntry>, String> {
+    let mut poses = Vec::with_capacity(raw.len());
+    for p in raw {
+        let rows = &p.matrix_world;
+        if rows.len() != 4 || rows.iter().any(|r| r.len() != 4) {
+            let shape: Vec<String> = rows.iter().map(|r| r.len().to_string()).collect();
+            return Err(format!(
+                "pose {}: matrix_world must be 4x4 (rows of {} values)",
+                p.id,
+                shape.join(", ")
+            ));
+        }
+        let matrix_world = Matrix4::from_fn(|r, c| rows[r][c]);
+        poses.push(PoseEntry {
+            id: p.id,
+            matrix_world,
+        });
+    }
+    Ok(poses)
+}
+
+/// Reads only what applying poses needs (see [`PoseList`]); when the file is also
+/// a complete poses.json, it is returned whole as well.
+pub(super) fn read_pose_list(path: &Path) -> Result<PoseList, PosesError> {
+    let text = std::fs::read_to_string(path).map_err(|source| PosesError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let parse = |message: String| PosesError::Parse {
+        path: path.to_path_buf(),
+        message,
+    };
+    let value: serde_json::Value = serde_json::from_str(&text).map_err(|e| parse(e.to_string()))?;
+    let lean: RawPoseList =
+        serde_json::from_value(value.clone()).map_err(|e| parse(e.to_string()))?;
+    let invalid = |message: String| PosesError::Invalid {
+        path: path.to_path_buf(),
+        message,
+    };
+    let poses = poses_from_raw(lean.poses).map_err(invalid)?;
+    let mut ids = HashSet::with_capacity(poses.len());
+    for p in &poses {
+        check_matrix(&p.id, &p.matrix_world).map_err(invalid)?;
+        if !ids.insert(p.id.as_str()) {
+            return Err(invalid(format!("duplicate pose id {}", p.id)));
+        }
+    }
+    let full = serde_json::from_value::<RawFile>(value)
+        .ok()
+        .and_then(|raw| from_raw(raw).ok());
+    Ok(PoseList {
+        crs: lean.crs.filter(|c| !c.is_empty()),
+        poses,
+        full,
+    })
 }
 
 fn check_matrix(id: &str, m: &Matrix4<f64>) -> Result<(), String> {

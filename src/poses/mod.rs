@@ -11,8 +11,10 @@
 //! `"components"` (lists of ids) and `"summary"`.
 
 mod json;
+mod list;
 /// Rigid-transform helpers, now in [`crate::geo::rigid`].
 pub use crate::geo::rigid;
+pub use list::PoseList;
 
 pub use rigid::{inverse_rigid, rotation_angle_deg, to_local, to_world};
 

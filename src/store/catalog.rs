@@ -2,7 +2,7 @@
 //!
 //! The root group's `zarr.json` carries `{"dsmstream": {version, crs, dsms}}`
 //! (the ordered list of DSM ids); each DSM group `<id>/zarr.json` carries
-//! `{"dsmstream": DsmMeta, "multiscales": [...]}`. `DsmMeta` is the single
+//! `{"dsmstream": DsmMeta, "multiscales": {...}}`. `DsmMeta` is the single
 //! source of truth (deserialized as is); `multiscales` repeats the levels with
 //! their paths, shapes and geotransforms for other tools. Group metadata files
 //! are always replaced atomically (write to a temporary name, then rename).
@@ -142,28 +142,18 @@ impl DsmMeta {
         self.valid_count as f64 / (self.width * self.height).max(1) as f64
     }
 
-    /// The DSM group's attributes: the metadata plus a multiscales listing.
+    /// The DSM group's attributes: the metadata plus the levels in the
+    /// multiscales convention (see [`super::geo_attrs::multiscales`]).
     pub fn to_attributes(&self) -> Value {
-        let datasets: Vec<Value> = self
+        let levels: Vec<(GeoTransform, u64, u64)> = self
             .levels
             .iter()
             .enumerate()
-            .map(|(k, l)| {
-                json!({
-                    "path": k.to_string(),
-                    "shape": [l.height, l.width],
-                    "geotransform": self.level_geotransform(k).0,
-                })
-            })
+            .map(|(k, l)| (self.level_geotransform(k), l.height, l.width))
             .collect();
-        json!({
-            "dsmstream": self,
-            "multiscales": [{
-                "name": self.id,
-                "datasets": datasets,
-                "type": "2x2 mean of valid pixels (NaN when none)",
-            }],
-        })
+        let mut attrs = super::geo_attrs::multiscales(&levels, &self.crs);
+        attrs.insert("dsmstream".into(), json!(self));
+        Value::Object(attrs)
     }
 }
 
@@ -351,10 +341,10 @@ pub(crate) mod tests {
         assert_eq!(format!("{same:?}"), format!("{meta:?}"));
         let attrs = read_group_attributes(dir.path()).unwrap();
         assert_eq!(attrs["dsmstream"]["nodata"], "nan");
-        let ds = &attrs["multiscales"][0]["datasets"];
-        assert_eq!(ds[1]["path"], "1");
-        assert_eq!(ds[1]["shape"], json!([300, 500]));
-        assert_eq!(ds[1]["geotransform"][1], 1.0);
+        let ds = &attrs["multiscales"]["layout"];
+        assert_eq!(ds[1]["asset"], "1");
+        assert_eq!(ds[1]["spatial:shape"], json!([300, 500]));
+        assert_eq!(ds[1]["spatial:transform"][0], 1.0);
         let mut m = meta.clone();
         m.nodata = Some(-9999.0);
         write_group_attributes(dir.path(), &m.to_attributes()).unwrap();

@@ -282,7 +282,15 @@ fn write_levels(
     let (w, h) = (raster.width, raster.height);
     let source_info = files::source_info(&file.path)?;
     let shapes = level_shapes(w, h, settings);
-    let mut pyramid = PyramidWriter::create(fs.clone(), tmp, &shapes, settings)?;
+    let level_attributes = |k: usize| {
+        super::geo_attrs::level_attributes(
+            &raster.geotransform.overview(k as u32),
+            &raster.crs,
+            shapes[k].height,
+            shapes[k].width,
+        )
+    };
+    let mut pyramid = PyramidWriter::create(fs.clone(), tmp, &shapes, settings, &level_attributes)?;
     progress.dsm_started(&file.id, h);
     let acc = stream_rows(source, settings.chunk, &mut pyramid, progress)?;
     let empty_runs = pyramid.finish()?;

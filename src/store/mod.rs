@@ -4,9 +4,10 @@
 //! Layout of `<store>.zarr/`:
 //! ```text
 //! zarr.json            group; attributes {"dsmstream": {version, crs, dsms: [ids]}}
-//! <id>/zarr.json       group; attributes {"dsmstream": DsmMeta, "multiscales": [...]}
+//! <id>/zarr.json       group; attributes {"dsmstream": DsmMeta, "multiscales": {...}}
 //! <id>/0, <id>/1, ...  float32 arrays ["y","x"], NaN fill, square chunks, zstd;
-//!                      level k+1 = 2x2 mean of the valid pixels of level k
+//!                      level k+1 = 2x2 mean of the valid pixels of level k;
+//!                      attributes spatial:/proj: georeferencing (see geo_attrs)
 //! ```
 //! [`Store`] reads the catalog at open and opens the zarrs arrays lazily (once
 //! per DSM and level); [`StoreGrid`] gives pixel access to one level; `ingest`
@@ -16,6 +17,7 @@ pub mod catalog;
 pub mod check;
 mod chunks;
 mod files;
+pub mod geo_attrs;
 pub mod grid;
 pub mod ingest;
 pub mod lock;

@@ -219,13 +219,15 @@ pub struct PyramidWriter {
 }
 
 impl PyramidWriter {
-    /// Create (and store the metadata of) every level array in the group
+    /// Create (and store the metadata of, with `level_attributes(k)` as the
+    /// attributes of level k) every level array in the group
     /// directory `group_dir` of the store (like `<store>/tile_01.tmp-123`).
     pub fn create(
         fs: Arc<FilesystemStore>,
         group_dir: &std::path::Path,
         shapes: &[LevelMeta],
         settings: &StorageSettings,
+        level_attributes: &dyn Fn(usize) -> serde_json::Map<String, serde_json::Value>,
     ) -> Result<PyramidWriter, StoreError> {
         super::configure_zarrs();
         let group = group_dir.file_name().unwrap_or_default().to_string_lossy();
@@ -240,6 +242,7 @@ impl PyramidWriter {
                 f32::NAN,
             );
             builder.dimension_names(Some(["y", "x"]));
+            builder.attributes(level_attributes(k));
             if let Compression::Zstd { level } = settings.compression {
                 builder.bytes_to_bytes_codecs(vec![Arc::new(ZstdCodec::new(level, false))]);
             }

@@ -177,9 +177,9 @@ fn fuse_killed_at_random_points_then_rerun_equals_one_run() {
     for _ in 0..3 {
         for _ in 0..3 {
             let after = Duration::from_micros(rng.below(full.as_micros() as u64 * 6 / 5));
-            run_killed(&[&"fuse", &store, &"--out", &out, &"-q"], after);
+            run_killed(&[&"fuse", &store, &"--out", &out, &"-q", &"--force"], after);
         }
-        run_ok(&[&"fuse", &store, &"--out", &out, &"-q"]);
+        run_ok(&[&"fuse", &store, &"--out", &out, &"-q", &"--force"]);
         assert!(std::fs::read(&out).unwrap() == std::fs::read(&reference).unwrap());
         assert!(leftovers(&out_dir).is_empty(), "{:?}", leftovers(&out_dir));
     }

@@ -9,6 +9,7 @@ mod align_journal;
 mod coarse;
 mod demo;
 mod dsmgen;
+mod eco;
 mod faults;
 mod fuse_eval;
 mod fuzz;

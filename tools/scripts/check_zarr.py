@@ -9,7 +9,11 @@ For every DSM listed in the root catalog:
     stored level k-1 (NaN where none), computed here in float64 in the same
     order, so the comparison is exact;
   * the catalog attributes (shape, geotransform, valid count, levels) must
-    match what rasterio and the arrays say.
+    match what rasterio and the arrays say;
+  * each level array's georeferencing attributes (the spatial:/proj: Zarr
+    conventions GDAL >= 3.13 reads) must match: spatial:transform is the
+    level's geotransform in [a, b, c, d, e, f] order, spatial:shape its shape,
+    proj:code the source's EPSG code (when it has one).
 Reads a block of rows at a time, so large stores are fine.
 
 Prints a table and exits 1 on any mismatch, 2 on bad usage.
@@ -71,6 +75,23 @@ def compare(got, want):
     return int(bad.sum()), diff
 
 
+def georef_problems(k, arr, gt0, src):
+    """Differences between level k's spatial:/proj: attributes and the source."""
+    attrs = dict(arr.attrs)
+    f = float(2 ** k)
+    want = [gt0[1] * f, gt0[2] * f, gt0[0], gt0[4] * f, gt0[5] * f, gt0[3]]
+    got = attrs.get("spatial:transform")
+    out = []
+    if got is None or any(abs(a - b) > 1e-9 * max(1.0, abs(a)) for a, b in zip(want, got)):
+        out.append(f"level {k}: spatial:transform {got} vs {want}")
+    if list(attrs.get("spatial:shape", [])) != list(arr.shape):
+        out.append(f"level {k}: spatial:shape {attrs.get('spatial:shape')} vs {list(arr.shape)}")
+    epsg = src.crs.to_epsg() if src.crs else None
+    if epsg is not None and attrs.get("proj:code") != f"EPSG:{epsg}":
+        out.append(f"level {k}: proj:code {attrs.get('proj:code')} vs EPSG:{epsg}")
+    return out
+
+
 def check_dsm(group, meta, rows_per_block):
     """Yield one result row per level."""
     src = rasterio.open(meta["source"]["path"])
@@ -104,6 +125,7 @@ def check_dsm(group, meta, rows_per_block):
             valid += int((~np.isnan(got)).sum())
         if k == 0 and valid != meta["valid_count"]:
             problems.append(f"valid_count {meta['valid_count']} in catalog, {valid} in array")
+        problems.extend(georef_problems(k, arr, gt, src))
         ok = shape_ok and mismatches == 0
         yield {
             "level": k,
