@@ -98,6 +98,8 @@ fn run_collection(data_dir: &Path, work: &Path) -> anyhow::Result<()> {
             min_overlap: 0.1,
             anchor: None,
             resume: false,
+            shard: None,
+            merge: false,
             icp: IcpArgs::default(),
         })?;
         rows.push((graph, PosesFile::read(&out)?));
