@@ -1,5 +1,6 @@
 //! `dsmstream ingest`: convert GeoTIFF DSMs into the collection store, with a
-//! progress bar (rows read, through tracing-indicatif, hidden by `-q`) and one
+//! progress bar (rows read, through tracing-indicatif, hidden by `-q`; plain
+//! lines of DSMs done when stderr is not a terminal) and one
 //! summary line per DSM on stdout.
 
 use std::cell::RefCell;
@@ -9,7 +10,7 @@ use dsmstream::store::ingest::{DsmAction, DsmOutcome, IngestProgress};
 use dsmstream::store::{ingest, Compression, IngestOptions, StorageSettings};
 use tracing_indicatif::span_ext::IndicatifSpanExt;
 
-use super::common::{classify, emit_line, quiet, require_writable_dir};
+use super::common::{classify, emit_line, plain_progress, quiet, require_writable_dir, Progress};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -35,10 +36,11 @@ fn parse_compression(text: &str) -> Result<Compression, String> {
         .ok_or_else(|| format!("unknown compression {text:?} (zstd, zstd:<level>, none)"))
 }
 
-/// A progress bar per DSM, as a tracing span (so log lines do not tear it).
-#[derive(Default)]
+/// A progress bar per DSM, as a tracing span (so log lines do not tear it),
+/// and the plain lines (DSMs done) when stderr is not a terminal.
 struct BarProgress {
     span: RefCell<Option<tracing::Span>>,
+    lines: Progress,
 }
 
 impl IngestProgress for BarProgress {
@@ -51,6 +53,8 @@ impl IngestProgress for BarProgress {
         }
         span.pb_set_length(rows_total);
         span.pb_start();
+        self.lines
+            .set_message(format!("reading {id} ({rows_total} rows)"));
         *self.span.borrow_mut() = Some(span);
     }
 
@@ -62,6 +66,7 @@ impl IngestProgress for BarProgress {
 
     fn dsm_finished(&self, outcome: &DsmOutcome) {
         self.span.borrow_mut().take();
+        self.lines.inc(1);
         if quiet() {
             return;
         }
@@ -106,9 +111,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         force: args.force,
     };
     require_writable_dir(&args.store)?;
-    let progress = BarProgress::default();
+    let progress = BarProgress {
+        span: RefCell::new(None),
+        lines: plain_progress("DSMs"),
+    };
     let report = ingest(&args.inputs, &args.store, &options, &progress)
         .map_err(|e| classify(e, |e| e.is_bad_input()))?;
+    progress.lines.finish_and_clear();
     let count = |a: DsmAction| report.outcomes.iter().filter(|o| o.action == a).count();
     emit_line(&format!(
         "{}: {} ingested, {} replaced, {} skipped",

@@ -211,3 +211,74 @@ fn bad_shard_flags_are_refused_at_parse_time() {
         assert_eq!(o.status.code(), Some(2), "{bad:?}: {}", text(&o.stderr));
     }
 }
+
+/// The `progress:` lines a command wrote to `stderr_file`.
+fn progress_lines(stderr_file: &Path) -> Vec<String> {
+    std::fs::read_to_string(stderr_file)
+        .unwrap()
+        .lines()
+        .filter(|l| l.starts_with("progress: "))
+        .map(str::to_string)
+        .collect()
+}
+
+#[test]
+fn without_a_terminal_long_commands_print_plain_progress_lines() {
+    let c = collection();
+    let dir = folder("progress");
+    let log = dir.join("stderr.txt");
+    let run = |args: &[&str], quiet: bool| {
+        let mut cmd = bin();
+        cmd.args(args).env("DSMSTREAM_PROGRESS_SECS", "0.02");
+        if quiet {
+            cmd.arg("-q");
+        }
+        let status = cmd
+            .stderr(std::fs::File::create(&log).unwrap())
+            .stdout(std::process::Stdio::null())
+            .status()
+            .unwrap();
+        assert!(
+            status.success(),
+            "{args:?}: {}",
+            std::fs::read_to_string(&log).unwrap()
+        );
+        progress_lines(&log)
+    };
+    let store = c.store.to_str().unwrap();
+    let out = dir.join("poses.json");
+    let out = out.to_str().unwrap();
+    let lines = run(&["align", store, "--out", out, "--threads", "1"], false);
+    assert!(lines.len() >= 2, "{lines:?}");
+    let mut with_total = 0;
+    for line in &lines {
+        assert!(!line.contains('\u{1b}'), "ANSI code in {line:?}");
+        let rest = line.strip_prefix("progress: ").unwrap();
+        let (count, rest) = rest.split_once(' ').unwrap();
+        match count.split_once('/') {
+            // before the first pair ends, the total is not yet reported
+            None => assert!(count == "0" && rest.starts_with("pairs, "), "{line}"),
+            Some((done, total)) => {
+                with_total += 1;
+                assert!(
+                    done.parse::<u64>().unwrap() <= 20 && total == "20",
+                    "{line}"
+                );
+                assert!(rest.starts_with("pairs ("), "{line}");
+                assert!(
+                    rest.contains("/s, eta ") && rest.contains(", cache hit "),
+                    "{line}"
+                );
+                assert!(rest.ends_with('%'), "{line}");
+            }
+        }
+        assert!(rest.contains(", elapsed "), "{line}");
+    }
+    assert!(with_total >= 1, "{lines:?}");
+    assert!(
+        run(&["align", store, "--out", out, "--threads", "1"], true).is_empty(),
+        "-q silences them"
+    );
+    let eval = run(&["eval", store, "--poses", out, "--threads", "1"], false);
+    assert!(eval.iter().any(|l| l.contains(" pairs (")), "{eval:?}");
+}
