@@ -8,10 +8,12 @@
 //! ```
 //!
 //! Pairs travel by DSM index; ids appear only in the journal and the report.
+//! [`shard`] splits the pairwise step over processes (`--shard K/N`, `--merge`).
 
 pub mod report;
 pub mod scene;
 pub mod setup;
+pub mod shard;
 pub mod solve;
 
 use std::path::PathBuf;
@@ -19,6 +21,7 @@ use std::path::PathBuf;
 pub use report::{EdgeCounts, FailedPair};
 pub use scene::{SceneGraph, WeightsUsed};
 pub use setup::AlignPlan;
+pub use shard::{Shard, ShardReport};
 pub use solve::PoseSolution;
 
 use crate::cache::ChunkCache;
@@ -39,6 +42,20 @@ pub struct AlignConfig {
     pub anchor: Option<String>,
     pub resume: bool,
     pub output: PathBuf,
+    /// A whole run, one shard of it, or the merge of the shards.
+    pub sharding: Sharding,
+}
+
+/// How much of the run this process does ([`shard`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Sharding {
+    /// Every pair, then the poses.
+    #[default]
+    Whole,
+    /// Only this shard's pairs, into its own journal; no poses ([`align_shard`]).
+    Shard(Shard),
+    /// No pair registered: the shards' journals, then the poses.
+    Merge,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -89,7 +106,8 @@ impl AlignOutcome {
     }
 }
 
-/// Registers every overlapping pair of `store` and solves the poses.
+/// Registers every overlapping pair of `store` and solves the poses; with
+/// [`Sharding::Merge`], takes the pairs from the shard journals instead.
 /// `progress(done, total)` follows the pairs.
 pub fn align(
     store: &Store,
@@ -98,17 +116,34 @@ pub fn align(
     progress: &mut dyn FnMut(usize, usize),
 ) -> Result<AlignOutcome, AlignError> {
     let plan = setup::plan(store, config)?;
-    let (lock, mut journal, done) = setup::open_journal(store, &plan, config)?;
-    let reused_pairs = done.len();
-    let outcomes = pipeline::run(
-        store,
-        cache,
-        &plan.tasks,
-        &config.pipeline,
-        &mut journal,
-        done,
-        progress,
-    )?;
+    let mut reused_pairs = 0;
+    let (lock, outcomes, _shard_locks) = match config.sharding {
+        Sharding::Whole => {
+            let (lock, mut journal, done) = setup::open_journal(store, &plan, config)?;
+            reused_pairs = done.len();
+            let outcomes = pipeline::run(
+                store,
+                cache,
+                &plan.tasks,
+                &config.pipeline,
+                &mut journal,
+                done,
+                progress,
+            )?;
+            (lock, outcomes, Vec::new())
+        }
+        Sharding::Merge => {
+            let lock = OutputLock::acquire(&config.output)?;
+            let (shard_locks, outcomes) = shard::merge_outcomes(store, config, &plan)?;
+            progress(outcomes.len(), plan.tasks.len());
+            (lock, outcomes, shard_locks)
+        }
+        Sharding::Shard(s) => {
+            return Err(AlignError::Input(format!(
+                "--shard {s} writes no poses: run it through align_shard"
+            )))
+        }
+    };
     let scene = scene::build_graph(store, &outcomes, config)?;
     let solution = solve::solve(&scene, config.graph, plan.anchor)?;
     let parts = report::Parts {
@@ -128,4 +163,16 @@ pub fn align(
         reused_pairs,
         _lock: lock,
     })
+}
+
+/// Registers one shard's pairs (`--shard K/N`) into its journal; no poses.
+pub fn align_shard(
+    store: &Store,
+    cache: &ChunkCache,
+    config: &AlignConfig,
+    shard: Shard,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<ShardReport, AlignError> {
+    let plan = setup::plan(store, config)?;
+    shard::run_shard(store, cache, config, &plan, shard, progress)
 }

@@ -94,11 +94,8 @@ pub fn open_journal(
 ) -> Result<(OutputLock, Journal, Vec<PairOutcome>), AlignError> {
     let lock = OutputLock::acquire(&config.output)?;
     let path = Journal::path_for(&config.output);
-    let settings = format!(
-        "{:?} min_overlap={}",
-        config.pipeline.icp, config.pipeline.min_overlap
-    );
-    let ids = DsmIds::new(store.dsms().iter().map(|d| d.id.clone()).collect());
+    let settings = journal_settings(config);
+    let ids = dsm_ids(store);
     let (journal, done) = if config.resume {
         let planned: HashSet<PairTask> = plan.tasks.iter().copied().collect();
         Journal::resume(
@@ -119,4 +116,18 @@ pub fn open_journal(
         (Journal::create(&path, &settings, ids)?, Vec::new())
     };
     Ok((lock, journal, done))
+}
+
+/// The settings a journal's header records: a journal is reused (or, sharded,
+/// merged) only by a run with the same ones.
+pub fn journal_settings(config: &AlignConfig) -> String {
+    format!(
+        "{:?} min_overlap={}",
+        config.pipeline.icp, config.pipeline.min_overlap
+    )
+}
+
+/// The store's DSM ids, for converting journal lines.
+pub fn dsm_ids(store: &Store) -> DsmIds {
+    DsmIds::new(store.dsms().iter().map(|d| d.id.clone()).collect())
 }

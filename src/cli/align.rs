@@ -1,9 +1,12 @@
 //! `dsmstream align <store> --out poses.json`: every overlapping pair through
-//! DSM-ICP, the scene graph, motion averaging (or `--graph mst`), poses.json.
+//! DSM-ICP, the scene graph, motion averaging (or `--graph mst`), poses.json;
+//! `--shard K/N` registers one shard's pairs only, `--merge` solves from them.
 
 use std::path::PathBuf;
 
-use dsmstream::align::{align, AlignConfig, AlignOutcome};
+use dsmstream::align::{
+    align, align_shard, AlignConfig, AlignOutcome, Shard, ShardReport, Sharding,
+};
 use dsmstream::cache::ChunkCache;
 use dsmstream::graph::Weighting;
 use dsmstream::pipeline::memory::{pinned_bytes_per_thread, plan_memory};
@@ -59,6 +62,15 @@ pub struct Args {
     /// Start over: discard the journal of an earlier run.
     #[arg(long)]
     pub fresh: bool,
+    /// Register only shard K of N of the planned pairs (K = 0..N-1, e.g.
+    /// $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT) into <out>.journal.shard-K-of-N,
+    /// resuming it when the settings match; writes no poses (see --merge).
+    #[arg(long, value_name = "K/N", conflicts_with = "merge")]
+    pub shard: Option<Shard>,
+    /// Solve from every shard journal beside --out (same flags as the shards)
+    /// and write the poses: the result of a single run.
+    #[arg(long, conflicts_with = "resume")]
+    pub merge: bool,
     #[command(flatten)]
     pub icp: IcpArgs,
 }
@@ -92,6 +104,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         anchor: args.anchor.clone(),
         resume: !args.fresh,
         output: args.out.clone(),
+        sharding: match (args.shard, args.merge) {
+            (Some(s), _) => Sharding::Shard(s),
+            (None, true) => Sharding::Merge,
+            (None, false) => Sharding::Whole,
+        },
     };
     tracing::info!(
         threads = memory.threads,
@@ -102,7 +119,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let cache = ChunkCache::new(memory.cache_budget_bytes);
     let bar = progress_bar("pairs");
     let started = std::time::Instant::now();
-    let outcome = align(&store, &cache, &config, &mut |done, total| {
+    let mut progress = |done: usize, total: usize| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);
         let s = cache.stats();
@@ -111,18 +128,38 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "cache hit {:.0}%",
             100.0 * s.hits as f64 / lookups as f64
         ));
-    });
+    };
+    if let Sharding::Shard(shard) = config.sharding {
+        let report = align_shard(&store, &cache, &config, shard, &mut progress);
+        bar.finish_and_clear();
+        let report = report.map_err(to_anyhow)?;
+        cache.log_stats();
+        return print_shard(&report, started.elapsed().as_secs_f64());
+    }
+    let outcome = align(&store, &cache, &config, &mut progress);
     bar.finish_and_clear();
-    let outcome = outcome.map_err(|e| {
-        if e.is_bad_input() {
-            anyhow::Error::new(InputError::new(e.to_string()))
-        } else {
-            anyhow::Error::new(e)
-        }
-    })?;
+    let outcome = outcome.map_err(to_anyhow)?;
     cache.log_stats();
     outcome.poses.write(&args.out)?;
     print_summary(&outcome, &args.out, started.elapsed().as_secs_f64())?;
+    Ok(())
+}
+
+fn to_anyhow(e: dsmstream::align::AlignError) -> anyhow::Error {
+    if e.is_bad_input() {
+        anyhow::Error::new(InputError::new(e.to_string()))
+    } else {
+        anyhow::Error::new(e)
+    }
+}
+
+/// The summary (stdout) of one shard.
+fn print_shard(r: &ShardReport, seconds: f64) -> anyhow::Result<()> {
+    emit_line(&format!(
+        "shard {}: {} of {} planned pairs ({} from its journal): {} registered, {} below --min-overlap, {} failed, {seconds:.1} s",
+        r.shard, r.pairs, r.planned, r.reused, r.registered, r.below_overlap, r.failed
+    ))?;
+    emit_line(&format!("journal written to {}", r.journal.display()))?;
     Ok(())
 }
 

@@ -1,15 +1,18 @@
 //! What every command shares: the resource flags (`--cache-mb`, `--threads`)
 //! with their one validation, the one way a library error becomes "the user's
 //! fault" (exit code 2), opening a store and finding a DSM in it, the progress
-//! bar, and writing to stdout so that a closed pipe ends the command quietly.
+//! report ([`progress_bar`]), and writing to stdout so that a closed pipe ends the command quietly.
 
-use std::io::Write;
+use std::io::{IsTerminal, Write};
 use std::path::Path;
 
 use dsmstream::cache::ChunkCache;
 use dsmstream::store::Store;
 use dsmstream::InputError;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+
+use super::progress::plain_interval;
+pub use super::progress::Progress;
 
 /// Largest `--threads` accepted: more threads than this only exhaust memory
 /// (each has its own stack) and never run faster.
@@ -140,16 +143,30 @@ pub fn require_writable_dir(path: &Path) -> anyhow::Result<()> {
     }
 }
 
-/// The one progress bar of the commands: `{bar} pos/len <unit> rate eta msg`
-/// on stderr, drawn only on a terminal (indicatif's rule) and hidden by `-q`.
-pub fn progress_bar(unit: &str) -> ProgressBar {
+/// The one progress report of the long commands ([`Progress`]): on a
+/// terminal the bar `{bar} pos/len <unit> rate eta msg`; otherwise plain
+/// lines every `DSMSTREAM_PROGRESS_SECS` (default 10 s); nothing with `-q`.
+pub fn progress_bar(unit: &str) -> Progress {
     let bar = ProgressBar::with_draw_target(Some(0), ProgressDrawTarget::stderr());
     let template = format!("{{bar:30}} {{pos}}/{{len}} {unit} {{per_sec}} eta {{eta}} {{msg}}");
     bar.set_style(ProgressStyle::with_template(&template).expect("valid template"));
-    if !tracing::enabled!(tracing::Level::WARN) {
+    if quiet() {
         bar.set_draw_target(ProgressDrawTarget::hidden());
+        return Progress::new(bar, unit, None);
     }
-    bar
+    let plain = (!std::io::stderr().is_terminal())
+        .then(plain_interval)
+        .flatten();
+    Progress::new(bar, unit, plain)
+}
+
+/// Only the plain lines of [`progress_bar`] (none on a terminal or with `-q`),
+/// for `ingest`, which draws its terminal bars through tracing spans.
+pub fn plain_progress(unit: &str) -> Progress {
+    let plain = (!quiet() && !std::io::stderr().is_terminal())
+        .then(plain_interval)
+        .flatten();
+    Progress::new(ProgressBar::hidden(), unit, plain)
 }
 
 /// `warning: <text>` on stderr, unless `-q` asked for errors only.

@@ -129,6 +129,8 @@ fn run_collection(data_dir: &Path, work: &Path) -> anyhow::Result<()> {
             anchor: None,
             resume: false,
             fresh: true,
+            shard: None,
+            merge: false,
             icp: IcpArgs::default(),
         })?;
         rows.push((graph, PosesFile::read(&out)?));

@@ -5,12 +5,14 @@
 
 use std::path::PathBuf;
 
-use dsmstream::eval::{evaluate, EvalConfig, EvalError};
+use dsmstream::eval::{evaluate, EvalConfig, EvalError, PairCounter};
 use dsmstream::fuse::{FuseError, PoseSet};
 use dsmstream::plots::write_eval_plots;
 use dsmstream::InputError;
 
-use super::common::{classify, emit, emit_line, open_store, require_file, ResourceArgs};
+use super::common::{
+    classify, emit, emit_line, open_store, progress_bar, require_file, ResourceArgs,
+};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -62,16 +64,31 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         max_samples: args.max_samples,
         threads: args.resources.threads(),
         all_returns: args.all_returns,
+        progress: PairCounter::default(),
     };
     let cache = args.resources.cache();
-    let (report, plot_data) = evaluate(
-        &store,
-        &cache,
-        poses.as_ref(),
-        args.reference.as_deref(),
-        &config,
-    )
-    .map_err(|e| classify(e, EvalError::is_bad_input))?;
+    let bar = progress_bar("pairs");
+    let result = std::thread::scope(|scope| {
+        let work = scope.spawn(|| {
+            evaluate(
+                &store,
+                &cache,
+                poses.as_ref(),
+                args.reference.as_deref(),
+                &config,
+            )
+        });
+        while !work.is_finished() {
+            let (done, total) = config.progress.get();
+            bar.set_length(total);
+            bar.set_position(done);
+            std::thread::sleep(std::time::Duration::from_millis(100));
+        }
+        work.join()
+            .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
+    });
+    bar.finish_and_clear();
+    let (report, plot_data) = result.map_err(|e| classify(e, EvalError::is_bad_input))?;
     cache.log_stats();
     if args.json {
         emit_line(&serde_json::to_string_pretty(&report)?)?;

@@ -1,5 +1,6 @@
 //! `dsmstream ingest`: convert GeoTIFF DSMs into the collection store, with a
-//! progress bar (rows read, through tracing-indicatif, hidden by `-q`) and one
+//! progress bar (rows read, through tracing-indicatif, hidden by `-q`; plain
+//! lines of DSMs done when stderr is not a terminal) and one
 //! summary line per DSM on stdout.
 
 use std::cell::RefCell;
@@ -10,7 +11,9 @@ use dsmstream::store::{ingest, Compression, IngestOptions, StorageSettings};
 use dsmstream::InputError;
 use tracing_indicatif::span_ext::IndicatifSpanExt;
 
-use super::common::{classify, emit_line, quiet, require_writable_dir, warn_line};
+use super::common::{
+    classify, emit_line, plain_progress, quiet, require_writable_dir, warn_line, Progress,
+};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -38,10 +41,11 @@ fn parse_compression(text: &str) -> Result<Compression, String> {
         .ok_or_else(|| format!("unknown compression {text:?} (zstd, zstd:<level>, none)"))
 }
 
-/// A progress bar per DSM, as a tracing span (so log lines do not tear it).
-#[derive(Default)]
+/// A progress bar per DSM, as a tracing span (so log lines do not tear it),
+/// and the plain lines (DSMs done) when stderr is not a terminal.
 struct BarProgress {
     span: RefCell<Option<tracing::Span>>,
+    lines: Progress,
 }
 
 impl IngestProgress for BarProgress {
@@ -54,6 +58,8 @@ impl IngestProgress for BarProgress {
         }
         span.pb_set_length(rows_total);
         span.pb_start();
+        self.lines
+            .set_message(format!("reading {id} ({rows_total} rows)"));
         *self.span.borrow_mut() = Some(span);
     }
 
@@ -65,6 +71,7 @@ impl IngestProgress for BarProgress {
 
     fn dsm_finished(&self, outcome: &DsmOutcome) {
         self.span.borrow_mut().take();
+        self.lines.inc(1);
         if quiet() {
             return;
         }
@@ -193,9 +200,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     require_writable_dir(&args.store)?;
     let inputs = expand_lists(&args.inputs)?;
-    let progress = BarProgress::default();
+    let progress = BarProgress {
+        span: RefCell::new(None),
+        lines: plain_progress("DSMs"),
+    };
     let report = ingest(&inputs, &args.store, &options, &progress)
         .map_err(|e| classify(e, |e| e.is_bad_input()))?;
+    progress.lines.finish_and_clear();
     warn_mixed_vertical(&args.store);
     let count = |a: DsmAction| report.outcomes.iter().filter(|o| o.action == a).count();
     emit_line(&format!(

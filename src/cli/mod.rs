@@ -13,6 +13,7 @@ pub mod icp_args;
 pub mod info;
 pub mod ingest;
 pub mod pair;
+pub mod progress;
 
 use clap::{Parser, Subcommand};
 

@@ -68,6 +68,8 @@ pub struct EvalConfig {
     pub threads: usize,
     /// Use every lidar return (default: first returns only).
     pub all_returns: bool,
+    /// Pairs evaluated so far, of how many: read by the caller's progress report.
+    pub progress: PairCounter,
 }
 
 impl Default for EvalConfig {
@@ -77,7 +79,32 @@ impl Default for EvalConfig {
             max_samples: 1_000_000,
             threads: 1,
             all_returns: false,
+            progress: PairCounter::default(),
         }
+    }
+}
+
+/// Pairs done and planned, shared between the workers and a progress reader.
+#[derive(Clone, Debug, Default)]
+pub struct PairCounter {
+    done: std::sync::Arc<std::sync::atomic::AtomicU64>,
+    total: std::sync::Arc<std::sync::atomic::AtomicU64>,
+}
+
+impl PairCounter {
+    /// (pairs done, pairs planned).
+    pub fn get(&self) -> (u64, u64) {
+        use std::sync::atomic::Ordering::Relaxed;
+        (self.done.load(Relaxed), self.total.load(Relaxed))
+    }
+
+    fn plan(&self, total: usize) {
+        self.total
+            .store(total as u64, std::sync::atomic::Ordering::Relaxed);
+    }
+
+    fn tick(&self) {
+        self.done.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
     }
 }
 

@@ -68,12 +68,15 @@ pub fn eval_pairs(
         })
         .collect();
     let pairs = candidate_pairs(&footprints);
+    config.progress.plan(pairs.len());
     let results = pool.install(|| {
         pairs
             .par_iter()
             .map(|&(i, j)| {
                 let region = Bounds::from(footprints[i].bounds).clip(&footprints[j].bounds.into());
-                eval_pair(store, cache, before, after, config, i, j, region)
+                let result = eval_pair(store, cache, before, after, config, i, j, region);
+                config.progress.tick();
+                result
             })
             .collect::<Result<Vec<_>, _>>()
     })?;

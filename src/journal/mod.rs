@@ -117,22 +117,28 @@ impl Journal {
         let Some((text, records)) = read_records(path, settings)? else {
             return Ok((Journal::create(path, settings, ids)?, Vec::new()));
         };
-        let mut outcomes: HashMap<PairTask, PairOutcome> = HashMap::new();
-        for (line, record) in &records {
-            let outcome = ids
-                .outcome(record, planned, min_overlap)
-                .map_err(|message| JournalError::BadRecord {
-                    path: path.display().to_string(),
-                    line: *line,
-                    message,
-                })?;
-            outcomes.insert(outcome.pair(), outcome);
-        }
+        let outcomes = checked_outcomes(path, &records, &ids, planned, min_overlap)?;
         // Rewrite header + good records so a torn line never sits mid-file.
         let mut journal = Journal::create(path, settings, ids)?;
         journal.write_raw(&text)?;
         journal.flush()?;
-        Ok((journal, outcomes.into_values().collect()))
+        Ok((journal, outcomes))
+    }
+
+    /// The pairs of a journal written with `settings`, checked as by
+    /// [`Journal::resume`], without opening it for writing (the merge of
+    /// sharded runs). A missing or empty journal holds no pair.
+    pub fn read(
+        path: &Path,
+        settings: &str,
+        ids: &DsmIds,
+        planned: &dyn Fn(PairTask) -> bool,
+        min_overlap: f64,
+    ) -> Result<Vec<PairOutcome>, JournalError> {
+        match read_records(path, settings)? {
+            Some((_, records)) => checked_outcomes(path, &records, ids, planned, min_overlap),
+            None => Ok(Vec::new()),
+        }
     }
 
     /// Appends one pair's outcome.
@@ -180,6 +186,29 @@ impl Journal {
     pub fn path(&self) -> &Path {
         &self.path
     }
+}
+
+/// Each record as a checked outcome (the last one of a pair journaled twice
+/// wins); the first bad record is an error naming the journal and its line.
+fn checked_outcomes(
+    path: &Path,
+    records: &[(usize, EdgeRecord)],
+    ids: &DsmIds,
+    planned: &dyn Fn(PairTask) -> bool,
+    min_overlap: f64,
+) -> Result<Vec<PairOutcome>, JournalError> {
+    let mut outcomes: HashMap<PairTask, PairOutcome> = HashMap::new();
+    for (line, record) in records {
+        let outcome = ids
+            .outcome(record, planned, min_overlap)
+            .map_err(|message| JournalError::BadRecord {
+                path: path.display().to_string(),
+                line: *line,
+                message,
+            })?;
+        outcomes.insert(outcome.pair(), outcome);
+    }
+    Ok(outcomes.into_values().collect())
 }
 
 /// The text of a journal's complete records, and each record with its line number.

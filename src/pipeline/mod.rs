@@ -113,7 +113,7 @@ pub fn run(
 
 /// Orders outcomes by the ids of (reference, moving), as poses.json lists its
 /// edges: each DSM's rank among the sorted ids is computed once.
-fn sort_by_ids(store: &Store, outcomes: &mut [PairOutcome]) {
+pub fn sort_by_ids(store: &Store, outcomes: &mut [PairOutcome]) {
     let dsms = store.dsms();
     let mut by_id: Vec<usize> = (0..dsms.len()).collect();
     by_id.sort_by(|&a, &b| dsms[a].id.cmp(&dsms[b].id));

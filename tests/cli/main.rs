@@ -18,5 +18,6 @@ mod pair_real;
 mod pair_recovery;
 mod readme;
 mod resume;
+mod shard;
 mod store_reliability;
 mod ttp_collection;
