@@ -77,6 +77,8 @@ pub struct AlignOutcome {
     pub components: Vec<Vec<String>>,
     pub weights: WeightsUsed,
     pub counts: EdgeCounts,
+    /// DSMs that no reliable, kept edge constrains: their poses are not learned.
+    pub unconstrained: Vec<String>,
     _lock: OutputLock,
 }
 
@@ -122,6 +124,7 @@ pub fn align(
         components: report::component_ids(store, &solution),
         weights: scene.weights.clone(),
         counts: report::edge_counts(&scene, &solution),
+        unconstrained: report::unconstrained_ids(store, &solution),
         _lock: lock,
     })
 }

@@ -7,6 +7,7 @@
 use nalgebra::Vector3;
 
 use super::{AlignConfig, AlignError};
+use crate::averaging::EdgeInformation;
 use crate::graph::{information_weights, paper_weights, Edge, EdgeSigma, PoseGraph, Weighting};
 use crate::pipeline::{IcpFit, PairOutcome, PairTask};
 use crate::poses::rigid::to_local;
@@ -31,6 +32,9 @@ pub struct SceneGraph {
     /// World position of the local frame's origin.
     pub origin_world: Vector3<f64>,
     pub weights: WeightsUsed,
+    /// What each edge knows (one per edge), when every edge has a covariance or
+    /// standard errors and information weights are used; None otherwise.
+    pub information: Option<Vec<EdgeInformation>>,
 }
 
 /// One edge per registered pair, weighted; an error when no pair registered.
@@ -42,11 +46,12 @@ pub fn build_graph(
     let origin_world = local_origin(store);
     let mut graph = PoseGraph::new(store.dsms().len());
     let mut outcome_of_edge = Vec::new();
+    let mut information = Vec::new();
     for (k, outcome) in outcomes.iter().enumerate() {
         if let PairOutcome::Registered { pair, overlap, fit } = outcome {
-            graph
-                .edges
-                .push(edge(store, *pair, *overlap, fit, &origin_world));
+            let e = edge(store, *pair, *overlap, fit, &origin_world);
+            information.push(edge_information(fit, &e));
+            graph.edges.push(e);
             outcome_of_edge.push(k);
         }
     }
@@ -54,11 +59,16 @@ pub fn build_graph(
         return Err(no_edge_error(store, outcomes, config.pipeline.min_overlap));
     }
     let weights = weigh(&mut graph.edges, config.weights);
+    let information = information
+        .into_iter()
+        .collect::<Option<Vec<_>>>()
+        .filter(|_| weights.used == Weighting::Information);
     Ok(SceneGraph {
         graph,
         outcome_of_edge,
         origin_world,
         weights,
+        information,
     })
 }
 
@@ -104,9 +114,26 @@ fn no_edge_error(store: &Store, outcomes: &[PairOutcome], min_overlap: f64) -> A
     })
 }
 
+/// What the edge of `fit` knows: the fit's covariance blocks when it reported
+/// them, else diagonal information from its standard errors (journals of older
+/// versions); None when it has neither. Not converged (still moving at the last
+/// iteration): unreliable, never at full weight. The local frame differs from
+/// the world frame by a shift only, so the blocks keep their axes; the
+/// translation block is about the fit's centroid, which [`edge`] made the edge's
+/// measurement point.
+fn edge_information(fit: &IcpFit, edge: &Edge) -> Option<EdgeInformation> {
+    let reliable = fit.reliable();
+    let info = match &fit.information {
+        Some(p) => EdgeInformation::from_covariance(&p.covariance_6x6(), reliable),
+        None => EdgeInformation::from_sigma(edge.sigma.as_ref()?, reliable),
+    };
+    info.is_valid().then_some(info)
+}
+
 /// The graph edge of a registered pair, in the local frame: M_ij, its standard
-/// errors ([`EdgeSigma::from_fit`]), and the centre of the two footprints'
-/// intersection at the mean height as the point where its translation was measured.
+/// errors ([`EdgeSigma::from_fit`]), and the point where its translation was
+/// measured: the fit's centroid when it reported one, else the centre of the two
+/// footprints' intersection at the mean height.
 fn edge(
     store: &Store,
     pair: PairTask,
@@ -122,6 +149,10 @@ fn edge(
         (fa[1].max(fb[1]) + fa[3].min(fb[3])) / 2.0,
         (a.height_stats.mean + b.height_stats.mean) / 2.0,
     );
+    let centre_world = fit
+        .information
+        .as_ref()
+        .map_or(centre_world, |p| p.centroid());
     let m_ij_local = to_local(&fit.t_ref_moving_world, origin_world);
     Edge {
         sigma: fit.sigma.map(|s| EdgeSigma::from_fit(&s, overlap)),
