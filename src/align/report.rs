@@ -56,11 +56,12 @@ pub fn poses_file(parts: &Parts<'_>) -> PosesFile {
         .map(|(k, m)| PoseEntry {
             id: dsms[k].id.clone(),
             matrix_world: to_world(m, &scene.origin_world),
-            sigma: solution
-                .sigma
-                .as_ref()
-                .map(|s| s[k])
-                .filter(|s| s.shift_m.iter().chain(&s.rotation_deg).all(|v| v.is_finite())),
+            sigma: solution.sigma.as_ref().map(|s| s[k]).filter(|s| {
+                s.shift_m
+                    .iter()
+                    .chain(&s.rotation_deg)
+                    .all(|v| v.is_finite())
+            }),
             status: solution
                 .status
                 .as_ref()

@@ -33,7 +33,8 @@ pub struct SceneGraph {
     pub origin_world: Vector3<f64>,
     pub weights: WeightsUsed,
     /// What each edge knows (one per edge), when every edge has a covariance or
-    /// standard errors and information weights are used; None otherwise.
+    /// standard errors, at least one a covariance, and information weights are
+    /// used; None otherwise (then the scalar averaging runs).
     pub information: Option<Vec<EdgeInformation>>,
 }
 
@@ -59,10 +60,17 @@ pub fn build_graph(
         return Err(no_edge_error(store, outcomes, config.pipeline.min_overlap));
     }
     let weights = weigh(&mut graph.edges, config.weights);
+    // Until some pair reports a covariance (an ICP that computes it), the scalar
+    // averaging of the standard errors runs as before.
+    let any_covariance = outcome_of_edge.iter().any(|&k| {
+        outcomes[k]
+            .edge_fit()
+            .is_some_and(|f| f.information.is_some())
+    });
     let information = information
         .into_iter()
         .collect::<Option<Vec<_>>>()
-        .filter(|_| weights.used == Weighting::Information);
+        .filter(|_| weights.used == Weighting::Information && any_covariance);
     Ok(SceneGraph {
         graph,
         outcome_of_edge,

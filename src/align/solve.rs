@@ -91,7 +91,11 @@ fn solve_informed(
         .map_err(|e| AlignError::Averaging(e.to_string()))?;
     let mut result = informed.averaging;
     for members in &result.components {
-        fix_gauge(&mut result.poses, members, anchor.filter(|a| members.contains(a)));
+        fix_gauge(
+            &mut result.poses,
+            members,
+            anchor.filter(|a| members.contains(a)),
+        );
     }
     let summary = PosesSummary {
         weights: Some(scene.weights.used),

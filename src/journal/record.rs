@@ -111,7 +111,7 @@ impl DsmIds {
         record.inliers = fit.inliers;
         record.iterations = fit.iterations;
         record.sigma = fit.sigma;
-        record.information = fit.information.clone();
+        record.information = fit.information.as_deref().cloned();
         record
     }
 
@@ -204,7 +204,7 @@ fn fit_of(record: &EdgeRecord, status: IcpStatus, rows: &[[f64; 4]; 4]) -> Resul
         inliers: record.inliers,
         iterations: record.iterations,
         sigma: record.sigma,
-        information: record.information.clone(),
+        information: record.information.clone().map(Box::new),
     };
     // An edge's RMSE feeds the weights; a failed fit's is only reported.
     if fit.usable() && !(fit.rmse_m.is_finite() && fit.rmse_m >= 0.0) {

@@ -56,12 +56,14 @@ fn outcome(i: usize) -> PairOutcome {
             }),
             // Odd pairs carry the fit's information; even ones are as an older
             // version journaled them.
-            information: (i % 2 == 1).then(|| PairInformation {
-                covariance: std::array::from_fn(|r| {
-                    std::array::from_fn(|c| if r == c { 1e-4 * (r + 1) as f64 } else { 0.0 })
-                }),
-                centroid_world: [500_000.25, 4_000_000.5, 101.125],
-                degenerate: vec![Axis::X, Axis::Yaw],
+            information: (i % 2 == 1).then(|| {
+                Box::new(PairInformation {
+                    covariance: std::array::from_fn(|r| {
+                        std::array::from_fn(|c| if r == c { 1e-4 * (r + 1) as f64 } else { 0.0 })
+                    }),
+                    centroid_world: [500_000.25, 4_000_000.5, 101.125],
+                    degenerate: vec![Axis::X, Axis::Yaw],
+                })
             }),
         },
     }

@@ -29,7 +29,7 @@ pub struct IcpFit {
     pub sigma: Option<FitSigma>,
     /// The final fit's covariance and degenerate axes; None for pairs journaled
     /// before it was reported, or when the ICP did not compute it.
-    pub information: Option<PairInformation>,
+    pub information: Option<Box<PairInformation>>,
 }
 
 /// What a pair's fit knows, as journaled: the 6x6 covariance of (x, y, z [m],

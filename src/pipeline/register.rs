@@ -45,7 +45,10 @@ pub fn register_pair(
                 inliers: r.inliers,
                 iterations: r.iterations,
                 sigma: Some(r.sigma),
-                information: r.information.as_ref().map(PairInformation::from_fit),
+                information: r
+                    .information
+                    .as_ref()
+                    .map(|i| Box::new(PairInformation::from_fit(i))),
             };
             if fit.usable() {
                 PairOutcome::Registered { pair, overlap, fit }
