@@ -181,3 +181,64 @@ fn local_origin(store: &Store) -> Vector3<f64> {
     }
     Vector3::new(x.round(), y.round(), z.round())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fit::{Axis, FitSigma};
+    use crate::icp::IcpStatus;
+    use crate::pipeline::PairInformation;
+    use nalgebra::Matrix4;
+
+    fn fit(status: IcpStatus, information: Option<PairInformation>) -> IcpFit {
+        IcpFit {
+            status,
+            t_ref_moving_world: Matrix4::identity(),
+            rmse_m: 0.1,
+            inliers: 100,
+            iterations: 5,
+            sigma: Some(FitSigma {
+                rot_deg: [0.01, 0.02, 0.04],
+                trans_m: [0.1, 0.2, 0.05],
+            }),
+            information: information.map(Box::new),
+        }
+    }
+
+    #[test]
+    fn edge_information_follows_the_fit_and_its_status() {
+        let edge = Edge {
+            sigma: Some(EdgeSigma::new(
+                Vector3::new(1e-4, 2e-4, 4e-4),
+                Vector3::new(0.1, 0.2, 0.05),
+            )),
+            ..Edge::new(0, 1, Matrix4::identity(), 0.5, 0.1)
+        };
+        // without a covariance: 1 / sigma^2 on the diagonal
+        let info = edge_information(&fit(IcpStatus::Converged, None), &edge).unwrap();
+        assert!(info.reliable);
+        assert!((info.translation[(1, 1)] - 25.0).abs() < 1e-3);
+        assert!((info.rotation[(2, 2)] - 1.0 / 16e-8).abs() < 1.0);
+        // with one, degenerate in x and yaw: nothing learned there
+        let mut covariance = [[0.0; 6]; 6];
+        for (k, v) in [0.0, 0.01, 0.0004, 1e-8, 1e-8, 0.0].into_iter().enumerate() {
+            covariance[k][k] = v;
+        }
+        let p = PairInformation {
+            covariance,
+            centroid_world: [1.0, 2.0, 3.0],
+            degenerate: vec![Axis::X, Axis::Yaw],
+        };
+        let info = edge_information(&fit(IcpStatus::MaxIterations, Some(p)), &edge).unwrap();
+        assert!(!info.reliable, "not converged: never at full weight");
+        assert_eq!(info.translation[(0, 0)], 0.0);
+        assert!((info.translation[(1, 1)] - 100.0).abs() < 1e-9);
+        assert_eq!(info.rotation[(2, 2)], 0.0);
+        // neither: no information (the scene then falls back)
+        let bare = Edge {
+            sigma: None,
+            ..edge
+        };
+        assert!(edge_information(&fit(IcpStatus::Converged, None), &bare).is_none());
+    }
+}
