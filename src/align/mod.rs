@@ -96,6 +96,8 @@ pub struct AlignOutcome {
     pub counts: EdgeCounts,
     /// Pairs taken from the journal of an earlier run instead of registered.
     pub reused_pairs: usize,
+    /// DSMs that no reliable, kept edge constrains: their poses are not learned.
+    pub unconstrained: Vec<String>,
     _lock: OutputLock,
 }
 
@@ -161,6 +163,7 @@ pub fn align(
         weights: scene.weights.clone(),
         counts: report::edge_counts(&scene, &solution),
         reused_pairs,
+        unconstrained: report::unconstrained_ids(store, &solution),
         _lock: lock,
     })
 }

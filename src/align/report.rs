@@ -7,6 +7,7 @@ use std::collections::HashSet;
 use super::scene::{SceneGraph, WeightsUsed};
 use super::solve::PoseSolution;
 use super::AlignConfig;
+use crate::averaging::NodeStatus;
 use crate::icp::IcpStatus;
 use crate::pipeline::PairOutcome;
 use crate::poses::rigid::to_world;
@@ -55,9 +56,21 @@ pub fn poses_file(parts: &Parts<'_>) -> PosesFile {
         .map(|(k, m)| PoseEntry {
             id: dsms[k].id.clone(),
             matrix_world: to_world(m, &scene.origin_world),
+            sigma: solution.sigma.as_ref().map(|s| s[k]).filter(|s| {
+                s.shift_m
+                    .iter()
+                    .chain(&s.rotation_deg)
+                    .all(|v| v.is_finite())
+            }),
+            status: solution
+                .status
+                .as_ref()
+                .map(|s| s[k])
+                .filter(|s| *s != NodeStatus::Constrained),
         })
         .collect();
     let dropped: HashSet<usize> = solution.dropped.iter().copied().collect();
+    let downweighted: HashSet<usize> = solution.downweighted.iter().copied().collect();
     let edges = scene
         .graph
         .edges
@@ -79,6 +92,7 @@ pub fn poses_file(parts: &Parts<'_>) -> PosesFile {
                 residual_m: solution.residuals[k].translation_m,
                 residual_deg: solution.residuals[k].rotation_deg,
                 dropped: dropped.contains(&k),
+                downweighted: downweighted.contains(&k),
                 converged: fit.status == IcpStatus::Converged,
             }
         })
@@ -104,6 +118,19 @@ pub fn component_ids(store: &Store, solution: &PoseSolution) -> Vec<Vec<String>>
         .components
         .iter()
         .map(|c| c.iter().map(|&k| dsms[k].id.clone()).collect())
+        .collect()
+}
+
+/// Ids of the DSMs no reliable, kept edge constrains (informed averaging only).
+pub fn unconstrained_ids(store: &Store, solution: &PoseSolution) -> Vec<String> {
+    let dsms = store.dsms();
+    solution
+        .status
+        .iter()
+        .flatten()
+        .enumerate()
+        .filter(|(_, s)| **s == NodeStatus::Unconstrained)
+        .map(|(k, _)| dsms[k].id.clone())
         .collect()
 }
 

@@ -7,6 +7,7 @@
 use nalgebra::Vector3;
 
 use super::{AlignConfig, AlignError};
+use crate::averaging::EdgeInformation;
 use crate::graph::{information_weights, paper_weights, Edge, EdgeSigma, PoseGraph, Weighting};
 use crate::pipeline::{IcpFit, PairOutcome, PairTask};
 use crate::poses::rigid::to_local;
@@ -31,6 +32,10 @@ pub struct SceneGraph {
     /// World position of the local frame's origin.
     pub origin_world: Vector3<f64>,
     pub weights: WeightsUsed,
+    /// What each edge knows (one per edge), when every edge has a covariance or
+    /// standard errors, at least one a covariance, and information weights are
+    /// used; None otherwise (then the scalar averaging runs).
+    pub information: Option<Vec<EdgeInformation>>,
 }
 
 /// One edge per registered pair, weighted; an error when no pair registered.
@@ -42,11 +47,12 @@ pub fn build_graph(
     let origin_world = local_origin(store);
     let mut graph = PoseGraph::new(store.dsms().len());
     let mut outcome_of_edge = Vec::new();
+    let mut information = Vec::new();
     for (k, outcome) in outcomes.iter().enumerate() {
         if let PairOutcome::Registered { pair, overlap, fit } = outcome {
-            graph
-                .edges
-                .push(edge(store, *pair, *overlap, fit, &origin_world));
+            let e = edge(store, *pair, *overlap, fit, &origin_world);
+            information.push(edge_information(fit, &e));
+            graph.edges.push(e);
             outcome_of_edge.push(k);
         }
     }
@@ -54,11 +60,23 @@ pub fn build_graph(
         return Err(no_edge_error(store, outcomes, config.pipeline.min_overlap));
     }
     let weights = weigh(&mut graph.edges, config.weights);
+    // Until some pair reports a covariance (an ICP that computes it), the scalar
+    // averaging of the standard errors runs as before.
+    let any_covariance = outcome_of_edge.iter().any(|&k| {
+        outcomes[k]
+            .edge_fit()
+            .is_some_and(|f| f.information.is_some())
+    });
+    let information = information
+        .into_iter()
+        .collect::<Option<Vec<_>>>()
+        .filter(|_| weights.used == Weighting::Information && any_covariance);
     Ok(SceneGraph {
         graph,
         outcome_of_edge,
         origin_world,
         weights,
+        information,
     })
 }
 
@@ -104,9 +122,26 @@ fn no_edge_error(store: &Store, outcomes: &[PairOutcome], min_overlap: f64) -> A
     })
 }
 
+/// What the edge of `fit` knows: the fit's covariance blocks when it reported
+/// them, else diagonal information from its standard errors (journals of older
+/// versions); None when it has neither. Not converged (still moving at the last
+/// iteration): unreliable, never at full weight. The local frame differs from
+/// the world frame by a shift only, so the blocks keep their axes; the
+/// translation block is about the fit's centroid, which [`edge`] made the edge's
+/// measurement point.
+fn edge_information(fit: &IcpFit, edge: &Edge) -> Option<EdgeInformation> {
+    let reliable = fit.reliable();
+    let info = match &fit.information {
+        Some(p) => EdgeInformation::from_covariance(&p.covariance_6x6(), reliable),
+        None => EdgeInformation::from_sigma(edge.sigma.as_ref()?, reliable),
+    };
+    info.is_valid().then_some(info)
+}
+
 /// The graph edge of a registered pair, in the local frame: M_ij, its standard
-/// errors ([`EdgeSigma::from_fit`]), and the centre of the two footprints'
-/// intersection at the mean height as the point where its translation was measured.
+/// errors ([`EdgeSigma::from_fit`]), and the point where its translation was
+/// measured: the fit's centroid when it reported one, else the centre of the two
+/// footprints' intersection at the mean height.
 fn edge(
     store: &Store,
     pair: PairTask,
@@ -122,6 +157,10 @@ fn edge(
         (fa[1].max(fb[1]) + fa[3].min(fb[3])) / 2.0,
         (a.height_stats.mean + b.height_stats.mean) / 2.0,
     );
+    let centre_world = fit
+        .information
+        .as_ref()
+        .map_or(centre_world, |p| p.centroid());
     let m_ij_local = to_local(&fit.t_ref_moving_world, origin_world);
     Edge {
         sigma: fit.sigma.map(|s| EdgeSigma::from_fit(&s, overlap)),
@@ -141,4 +180,65 @@ fn local_origin(store: &Store) -> Vector3<f64> {
         z += d.height_stats.mean / n;
     }
     Vector3::new(x.round(), y.round(), z.round())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fit::{Axis, FitSigma};
+    use crate::icp::IcpStatus;
+    use crate::pipeline::PairInformation;
+    use nalgebra::Matrix4;
+
+    fn fit(status: IcpStatus, information: Option<PairInformation>) -> IcpFit {
+        IcpFit {
+            status,
+            t_ref_moving_world: Matrix4::identity(),
+            rmse_m: 0.1,
+            inliers: 100,
+            iterations: 5,
+            sigma: Some(FitSigma {
+                rot_deg: [0.01, 0.02, 0.04],
+                trans_m: [0.1, 0.2, 0.05],
+            }),
+            information: information.map(Box::new),
+        }
+    }
+
+    #[test]
+    fn edge_information_follows_the_fit_and_its_status() {
+        let edge = Edge {
+            sigma: Some(EdgeSigma::new(
+                Vector3::new(1e-4, 2e-4, 4e-4),
+                Vector3::new(0.1, 0.2, 0.05),
+            )),
+            ..Edge::new(0, 1, Matrix4::identity(), 0.5, 0.1)
+        };
+        // without a covariance: 1 / sigma^2 on the diagonal
+        let info = edge_information(&fit(IcpStatus::Converged, None), &edge).unwrap();
+        assert!(info.reliable);
+        assert!((info.translation[(1, 1)] - 25.0).abs() < 1e-3);
+        assert!((info.rotation[(2, 2)] - 1.0 / 16e-8).abs() < 1.0);
+        // with one, degenerate in x and yaw: nothing learned there
+        let mut covariance = [[0.0; 6]; 6];
+        for (k, v) in [0.0, 0.01, 0.0004, 1e-8, 1e-8, 0.0].into_iter().enumerate() {
+            covariance[k][k] = v;
+        }
+        let p = PairInformation {
+            covariance,
+            centroid_world: [1.0, 2.0, 3.0],
+            degenerate: vec![Axis::X, Axis::Yaw],
+        };
+        let info = edge_information(&fit(IcpStatus::MaxIterations, Some(p)), &edge).unwrap();
+        assert!(!info.reliable, "not converged: never at full weight");
+        assert_eq!(info.translation[(0, 0)], 0.0);
+        assert!((info.translation[(1, 1)] - 100.0).abs() < 1e-9);
+        assert_eq!(info.rotation[(2, 2)], 0.0);
+        // neither: no information (the scene then falls back)
+        let bare = Edge {
+            sigma: None,
+            ..edge
+        };
+        assert!(edge_information(&fit(IcpStatus::Converged, None), &bare).is_none());
+    }
 }

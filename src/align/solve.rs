@@ -7,7 +7,10 @@ use nalgebra::Matrix4;
 
 use super::scene::SceneGraph;
 use super::AlignError;
-use crate::averaging::{average, edge_residuals, fix_gauge, AveragingOptions, EdgeResidual, Gauge};
+use crate::averaging::{
+    average, average_informed, edge_residuals, fix_gauge, AveragingOptions, EdgeInformation,
+    EdgeResidual, Gauge, InformedOptions, NodeSigma, NodeStatus,
+};
 use crate::graph::{chain_poses, mst, Weighting};
 use crate::poses::{GraphKind, PosesSummary};
 
@@ -28,6 +31,10 @@ pub struct PoseSolution {
     pub components: Vec<Vec<usize>>,
     /// Totals of the averaging (None for the spanning tree).
     pub summary: Option<PosesSummary>,
+    /// Standard errors of each pose from the solve (informed averaging only).
+    pub sigma: Option<Vec<NodeSigma>>,
+    /// How well the kept, reliable edges fix each pose (informed averaging only).
+    pub status: Option<Vec<NodeStatus>>,
 }
 
 /// Solves the poses of `scene` with the chosen graph and gauge.
@@ -43,6 +50,9 @@ pub fn solve(
 }
 
 fn solve_full(scene: &SceneGraph, anchor: Option<usize>) -> Result<PoseSolution, AlignError> {
+    if let Some(information) = &scene.information {
+        return solve_informed(scene, information, anchor);
+    }
     let weights = scene.weights.used;
     let options = AveragingOptions {
         gauge: anchor.map_or(Gauge::Mean, Gauge::Anchor),
@@ -64,6 +74,43 @@ fn solve_full(scene: &SceneGraph, anchor: Option<usize>) -> Result<PoseSolution,
         tree: None,
         components: result.components,
         summary: Some(summary),
+        sigma: None,
+        status: None,
+    })
+}
+
+/// Motion averaging with each edge's 3x3 rotation and translation information
+/// ([`average_informed`]); the anchor, if any, is applied afterwards (a rigid
+/// motion of each component: residuals and sigmas about the mean gauge).
+fn solve_informed(
+    scene: &SceneGraph,
+    information: &[EdgeInformation],
+    anchor: Option<usize>,
+) -> Result<PoseSolution, AlignError> {
+    let informed = average_informed(&scene.graph, information, &InformedOptions::default())
+        .map_err(|e| AlignError::Averaging(e.to_string()))?;
+    let mut result = informed.averaging;
+    for members in &result.components {
+        fix_gauge(
+            &mut result.poses,
+            members,
+            anchor.filter(|a| members.contains(a)),
+        );
+    }
+    let summary = PosesSummary {
+        weights: Some(scene.weights.used),
+        ..PosesSummary::from_result(&result)
+    };
+    Ok(PoseSolution {
+        poses_local: result.poses,
+        residuals: result.edge_residuals,
+        dropped: result.dropped_edges,
+        downweighted: result.downweighted_edges,
+        tree: None,
+        components: result.components,
+        summary: Some(summary),
+        sigma: Some(informed.sigma),
+        status: Some(informed.status),
     })
 }
 
@@ -85,5 +132,7 @@ fn solve_mst(scene: &SceneGraph, anchor: Option<usize>) -> Result<PoseSolution, 
         tree: Some(tree),
         components,
         summary: None,
+        sigma: None,
+        status: None,
     })
 }

@@ -44,7 +44,11 @@ impl EdgeInformation {
     /// the covariance blocks on their constrained subspaces (zero along degenerate
     /// axes).
     pub fn from_fit(info: &FitInformation, reliable: bool) -> Self {
-        let c: Matrix6<f64> = info.covariance_6x6;
+        Self::from_covariance(&info.covariance_6x6, reliable)
+    }
+
+    /// The same from a 6x6 covariance of (x, y, z, roll, pitch, yaw).
+    pub fn from_covariance(c: &Matrix6<f64>, reliable: bool) -> Self {
         EdgeInformation {
             translation: block_inverse(&c.fixed_view::<3, 3>(0, 0).into_owned()),
             rotation: block_inverse(&c.fixed_view::<3, 3>(3, 3).into_owned()),
@@ -52,7 +56,18 @@ impl EdgeInformation {
         }
     }
 
-    fn is_valid(&self) -> bool {
+    /// Diagonal information from per-axis standard errors (rad, m): for edges
+    /// whose fit reported no covariance.
+    pub fn from_sigma(sigma: &EdgeSigma, reliable: bool) -> Self {
+        let diag = |v: Vector3<f64>| Matrix3::from_diagonal(&v.map(|s| 1.0 / (s * s)));
+        EdgeInformation {
+            rotation: diag(sigma.rotation_rad()),
+            translation: diag(sigma.translation_m()),
+            reliable,
+        }
+    }
+
+    pub fn is_valid(&self) -> bool {
         let symmetric =
             |m: &Matrix3<f64>| (m - m.transpose()).amax() <= 1e-9 * m.amax().max(1e-300);
         let ok = |m: &Matrix3<f64>| {

@@ -224,5 +224,12 @@ fn print_summary(
     emit_line(&format!(
         "mean pairwise ICP rmse {mean_rmse:.3} m; largest edge residual {solved} {max_res:.3} m"
     ))?;
+    if !outcome.unconstrained.is_empty() {
+        emit_line(&format!(
+            "{} DSMs unconstrained (no reliable edge; poses not learned from the data): {}",
+            outcome.unconstrained.len(),
+            outcome.unconstrained.join(", ")
+        ))?;
+    }
     emit_line(&format!("poses written to {}", out.display()))
 }

@@ -74,10 +74,14 @@ fn fixture() -> Fixture {
             PoseEntry {
                 id: "a".into(),
                 matrix_world: Matrix4::identity(),
+                sigma: None,
+                status: None,
             },
             PoseEntry {
                 id: "b".into(),
                 matrix_world: m,
+                sigma: None,
+                status: None,
             },
         ],
         edges: vec![],

@@ -71,6 +71,8 @@ fn poses_file(entries: &[(&str, [f64; 3])]) -> PosesFile {
             .map(|(id, t)| PoseEntry {
                 id: id.to_string(),
                 matrix_world: translation(*t),
+                sigma: None,
+                status: None,
             })
             .collect(),
         edges: vec![],

@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::fit::FitSigma;
 use crate::icp::IcpStatus;
-use crate::pipeline::{Failure, IcpFit, PairOutcome, PairTask};
+use crate::pipeline::{Failure, IcpFit, PairInformation, PairOutcome, PairTask};
 use crate::poses::rigid::rigidity;
 use crate::poses::RIGIDITY_TOLERANCE;
 
@@ -36,6 +36,10 @@ pub struct EdgeRecord {
     /// overlap). None in journals written before they were reported.
     #[serde(default)]
     pub sigma: Option<FitSigma>,
+    /// The fit's covariance and degenerate axes. None in journals written
+    /// before it was reported (the edge then falls back to `sigma`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub information: Option<PairInformation>,
     /// Why the pair gave no edge (below --min-overlap, read error, no valid overlap...).
     pub note: Option<String>,
 }
@@ -86,6 +90,7 @@ impl DsmIds {
             inliers: 0,
             iterations: 0,
             sigma: None,
+            information: None,
             note: None,
         };
         let fit = match outcome {
@@ -106,6 +111,7 @@ impl DsmIds {
         record.inliers = fit.inliers;
         record.iterations = fit.iterations;
         record.sigma = fit.sigma;
+        record.information = fit.information.as_deref().cloned();
         record
     }
 
@@ -188,6 +194,9 @@ fn fit_of(record: &EdgeRecord, status: IcpStatus, rows: &[[f64; 4]; 4]) -> Resul
     if !sigma_ok {
         return Err("sigma holds a negative or non-finite number".into());
     }
+    if record.information.as_ref().is_some_and(|i| !i.is_valid()) {
+        return Err("information holds a non-finite number or is not a covariance".into());
+    }
     let fit = IcpFit {
         status,
         t_ref_moving_world: m,
@@ -195,6 +204,7 @@ fn fit_of(record: &EdgeRecord, status: IcpStatus, rows: &[[f64; 4]; 4]) -> Resul
         inliers: record.inliers,
         iterations: record.iterations,
         sigma: record.sigma,
+        information: record.information.clone().map(Box::new),
     };
     // An edge's RMSE feeds the weights; a failed fit's is only reported.
     if fit.usable() && !(fit.rmse_m.is_finite() && fit.rmse_m >= 0.0) {

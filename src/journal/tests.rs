@@ -1,9 +1,9 @@
 //! Tests of the journal: round trips, torn lines, and the records it refuses.
 
 use super::*;
-use crate::fit::FitSigma;
+use crate::fit::{Axis, FitSigma};
 use crate::icp::IcpStatus;
-use crate::pipeline::{Failure, IcpFit};
+use crate::pipeline::{Failure, IcpFit, PairInformation};
 use nalgebra::Matrix4;
 use std::fs::OpenOptions;
 
@@ -53,6 +53,17 @@ fn outcome(i: usize) -> PairOutcome {
             sigma: Some(FitSigma {
                 rot_deg: [1e-3, 2e-3, 5e-3],
                 trans_m: [0.01, 0.02, 0.003],
+            }),
+            // Odd pairs carry the fit's information; even ones are as an older
+            // version journaled them.
+            information: (i % 2 == 1).then(|| {
+                Box::new(PairInformation {
+                    covariance: std::array::from_fn(|r| {
+                        std::array::from_fn(|c| if r == c { 1e-4 * (r + 1) as f64 } else { 0.0 })
+                    }),
+                    centroid_world: [500_000.25, 4_000_000.5, 101.125],
+                    degenerate: vec![Axis::X, Axis::Yaw],
+                })
             }),
         },
     }
@@ -140,6 +151,28 @@ fn records_journaled_without_sigma_still_load() {
     assert_eq!(r.m_world, ids().record(&outcome(3)).m_world);
     let back = ids().outcome(&r, &|_| true, 0.1).unwrap();
     assert_eq!(back.edge_fit().unwrap().sigma, None);
+}
+
+#[test]
+fn information_round_trips_and_older_records_have_none() {
+    let record = ids().record(&outcome(3));
+    let text = serde_json::to_string(&record).unwrap();
+    assert!(text.contains("\"degenerate\":[\"x\",\"yaw\"]"), "{text}");
+    let back: EdgeRecord = serde_json::from_str(&text).unwrap();
+    let fit = ids().outcome(&back, &|_| true, 0.1).unwrap();
+    assert_eq!(fit.edge_fit(), outcome(3).edge_fit());
+    let mut old = serde_json::to_value(&record).unwrap();
+    old.as_object_mut().unwrap().remove("information");
+    let r: EdgeRecord = serde_json::from_value(old).unwrap();
+    let back = ids().outcome(&r, &|_| true, 0.1).unwrap();
+    assert_eq!(back.edge_fit().unwrap().information, None);
+    assert!(!serde_json::to_string(&ids().record(&outcome(2)))
+        .unwrap()
+        .contains("information"));
+    let mut bad = record;
+    bad.information.as_mut().unwrap().covariance[0][0] = -1.0;
+    let err = ids().outcome(&bad, &|_| true, 0.1).unwrap_err();
+    assert!(err.contains("information"), "{err}");
 }
 
 /// Writes a journal of `lines` (after the header) and resumes it.

@@ -18,7 +18,7 @@ pub mod memory;
 mod outcome;
 mod register;
 
-pub use outcome::{below_overlap_note, Failure, IcpFit, PairOutcome, PairTask};
+pub use outcome::{below_overlap_note, Failure, IcpFit, PairInformation, PairOutcome, PairTask};
 pub use register::register_pair;
 
 use std::collections::HashSet;

@@ -1,9 +1,10 @@
 //! What a worker sends for one pair: [`PairOutcome`], keyed by DSM indices.
 //! Ids appear only where outcomes are journaled (crate::journal).
 
-use nalgebra::Matrix4;
+use nalgebra::{Matrix4, Matrix6, Vector3};
+use serde::{Deserialize, Serialize};
 
-use crate::fit::FitSigma;
+use crate::fit::{Axis, FitInformation, FitSigma};
 use crate::icp::IcpStatus;
 
 /// A candidate pair by DSM index (reference < moving).
@@ -26,12 +27,62 @@ pub struct IcpFit {
     /// One-sigma standard errors of the last fit (local frame at the overlap);
     /// None for pairs journaled before they were reported.
     pub sigma: Option<FitSigma>,
+    /// The final fit's covariance and degenerate axes; None for pairs journaled
+    /// before it was reported, or when the ICP did not compute it.
+    pub information: Option<Box<PairInformation>>,
+}
+
+/// What a pair's fit knows, as journaled: the 6x6 covariance of (x, y, z [m],
+/// roll, pitch, yaw [rad]) about the world axes, the translation taken at
+/// `centroid_world`; zero along degenerate directions (nothing learned there).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PairInformation {
+    /// Row-major covariance on the constrained subspace.
+    pub covariance: [[f64; 6]; 6],
+    /// Where the translation was measured (world coordinates, metres).
+    pub centroid_world: [f64; 3],
+    /// Axes along which the fit learned nothing (held at their initial value).
+    #[serde(default)]
+    pub degenerate: Vec<Axis>,
+}
+
+impl PairInformation {
+    pub fn from_fit(info: &FitInformation) -> Self {
+        let c = &info.covariance_6x6;
+        PairInformation {
+            covariance: std::array::from_fn(|r| std::array::from_fn(|k| c[(r, k)])),
+            centroid_world: [info.centroid.x, info.centroid.y, info.centroid.z],
+            degenerate: info.degenerate.clone(),
+        }
+    }
+
+    pub fn covariance_6x6(&self) -> Matrix6<f64> {
+        Matrix6::from_fn(|r, c| self.covariance[r][c])
+    }
+
+    pub fn centroid(&self) -> Vector3<f64> {
+        Vector3::from(self.centroid_world)
+    }
+
+    /// Finite numbers, a symmetric covariance with no negative variance.
+    pub fn is_valid(&self) -> bool {
+        let c = self.covariance_6x6();
+        c.iter().chain(&self.centroid_world).all(|v| v.is_finite())
+            && (c - c.transpose()).amax() <= 1e-9 * c.amax().max(1e-300)
+            && (0..6).all(|k| c[(k, k)] >= 0.0)
+    }
 }
 
 impl IcpFit {
     /// Converged, or still improving at the last iteration: the graph can use it.
     pub fn usable(&self) -> bool {
         matches!(self.status, IcpStatus::Converged | IcpStatus::MaxIterations)
+    }
+
+    /// The graph may trust this fit at full weight: it converged (its degenerate
+    /// directions, if any, carry no information already).
+    pub fn reliable(&self) -> bool {
+        self.status == IcpStatus::Converged
     }
 }
 

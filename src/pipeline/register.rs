@@ -1,7 +1,7 @@
 //! One pair through the worker: score the overlap on the overviews and, if it
 //! is large enough, register it with DSM-ICP through the shared chunk cache.
 
-use super::outcome::{Failure, IcpFit, PairOutcome, PairTask};
+use super::outcome::{Failure, IcpFit, PairInformation, PairOutcome, PairTask};
 use super::PipelineConfig;
 use crate::cache::ChunkCache;
 use crate::grid::{Grid, Pyramid};
@@ -45,6 +45,10 @@ pub fn register_pair(
                 inliers: r.inliers,
                 iterations: r.iterations,
                 sigma: Some(r.sigma),
+                information: r
+                    .information
+                    .as_ref()
+                    .map(|i| Box::new(PairInformation::from_fit(i))),
             };
             if fit.usable() {
                 PairOutcome::Registered { pair, overlap, fit }

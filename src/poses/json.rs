@@ -38,6 +38,10 @@ struct RawPoseList {
 struct RawPose {
     id: String,
     matrix_world: Vec<Vec<f64>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    sigma: Option<crate::averaging::NodeSigma>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    status: Option<crate::averaging::NodeStatus>,
 }
 
 impl PosesFile {
@@ -64,6 +68,15 @@ impl PosesFile {
         let mut ids = HashSet::with_capacity(self.poses.len());
         for p in &self.poses {
             check_matrix(&p.id, &p.matrix_world)?;
+            let sigma_ok = p.sigma.is_none_or(|s| {
+                s.shift_m
+                    .iter()
+                    .chain(&s.rotation_deg)
+                    .all(|v| v.is_finite() && *v >= 0.0)
+            });
+            if !sigma_ok {
+                return Err(format!("pose {}: sigma must be finite and >= 0", p.id));
+            }
             if !ids.insert(p.id.as_str()) {
                 return Err(format!("duplicate pose id {}", p.id));
             }
@@ -127,6 +140,8 @@ impl PosesFile {
             matrix_world: (0..4)
                 .map(|r| (0..4).map(|c| p.matrix_world[(r, c)]).collect())
                 .collect(),
+            sigma: p.sigma,
+            status: p.status,
         });
         write_list(out, "poses", poses)?;
         write_list(out, "edges", self.edges.iter())?;
@@ -203,6 +218,8 @@ fn poses_from_raw(raw: Vec<RawPose>) -> Result<Vec<PoseEntry>, String> {
         poses.push(PoseEntry {
             id: p.id,
             matrix_world,
+            sigma: p.sigma,
+            status: p.status,
         });
     }
     Ok(poses)
@@ -287,6 +304,11 @@ mod tests {
                 PoseEntry {
                     id: format!("tile_{k:02}"),
                     matrix_world,
+                    sigma: (k == 1).then_some(crate::averaging::NodeSigma {
+                        shift_m: [0.012, 0.0305, 0.25],
+                        rotation_deg: [1e-4, 2.5e-3, 0.0625],
+                    }),
+                    status: (k == 2).then_some(crate::averaging::NodeStatus::Unconstrained),
                 }
             })
             .collect();
@@ -303,6 +325,7 @@ mod tests {
                 residual_m: (next() + 0.5) * 1e-3,
                 residual_deg: (next() + 0.5) * 1e-4,
                 dropped: k == 2,
+                downweighted: k == 3,
                 converged: true,
             })
             .collect();

@@ -58,6 +58,12 @@ pub struct PoseEntry {
     pub id: String,
     /// Maps the DSM's points (x, y, height in its CRS) to their corrected position.
     pub matrix_world: Matrix4<f64>,
+    /// One-sigma standard errors of the correction from the solve (optional;
+    /// absent when not computed or infinite).
+    pub sigma: Option<crate::averaging::NodeSigma>,
+    /// How well the graph fixes this pose: "weak" or "unconstrained" (optional;
+    /// absent for a constrained pose).
+    pub status: Option<crate::averaging::NodeStatus>,
 }
 
 /// One registered pair as reported in poses.json.
@@ -82,6 +88,10 @@ pub struct EdgeEntry {
     pub residual_deg: f64,
     /// Rejected as an outlier by the robust averaging.
     pub dropped: bool,
+    /// Kept at a lower weight by the robust averaging (an outlier that holds a
+    /// component together); absent in older files.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub downweighted: bool,
     /// The pairwise ICP converged.
     pub converged: bool,
 }

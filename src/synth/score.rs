@@ -189,6 +189,8 @@ mod tests {
                 .map(|(id, m)| PoseEntry {
                     id: id.to_string(),
                     matrix_world: *m,
+                    sigma: None,
+                    status: None,
                 })
                 .collect(),
             edges: Vec::new(),

@@ -150,6 +150,8 @@ fn rotated_tiles_map_back_onto_the_source_and_truth_poses_have_no_error() {
             .map(|t| PoseEntry {
                 id: t.id.clone(),
                 matrix_world: crate::geo::rigid::from_rows(&t.matrix_world),
+                sigma: None,
+                status: None,
             })
             .collect(),
         edges: vec![],
