@@ -38,10 +38,21 @@ struct RawPoseList {
 struct RawPose {
     id: String,
     matrix_world: Vec<Vec<f64>>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "lenient")]
     sigma: Option<crate::averaging::NodeSigma>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "lenient")]
     status: Option<crate::averaging::NodeStatus>,
+}
+
+/// An optional field another tool may write in its own form: read when it is
+/// ours, ignored (None) when it is not, like an unknown field.
+fn lenient<'de, D, T>(deserializer: D) -> Result<Option<T>, D::Error>
+where
+    D: serde::Deserializer<'de>,
+    T: serde::de::DeserializeOwned,
+{
+    let value = serde_json::Value::deserialize(deserializer)?;
+    Ok(serde_json::from_value(value).ok())
 }
 
 impl PosesFile {
