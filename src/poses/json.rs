@@ -38,9 +38,17 @@ struct RawPoseList {
 struct RawPose {
     id: String,
     matrix_world: Vec<Vec<f64>>,
-    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "lenient")]
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "lenient"
+    )]
     sigma: Option<crate::averaging::NodeSigma>,
-    #[serde(default, skip_serializing_if = "Option::is_none", deserialize_with = "lenient")]
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "lenient"
+    )]
     status: Option<crate::averaging::NodeStatus>,
 }
 
