@@ -104,6 +104,10 @@ impl Progress {
                     let mut err = std::io::stderr().lock();
                     let _ = writeln!(err, "{}", shared.line());
                 }
+                // The log ends with the final count, however short the run.
+                if shared.done.load(Ordering::Relaxed) > 0 {
+                    let _ = writeln!(std::io::stderr().lock(), "{}", shared.line());
+                }
             });
             Plain {
                 state,
