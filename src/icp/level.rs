@@ -240,6 +240,8 @@ impl LevelOutcome {
             constraint_ratio: self.constraint_ratio,
             sigma: self.sigma,
             information: None,
+            degenerate: Vec::new(),
+            ambiguity: None,
             nn: NnStatsSummary {
                 queries: self.nn.queries,
                 pixels_visited: self.nn.pixels_visited,
