@@ -271,6 +271,7 @@ impl LevelOutcome {
             info.centroid += origin;
             info
         });
+        let centre = information.as_ref().map_or(*origin, |i| i.centroid);
         let degenerate = information
             .as_ref()
             .map(|i| i.degenerate.clone())
@@ -291,6 +292,7 @@ impl LevelOutcome {
             constraint_ratio: self.constraint_ratio,
             sigma: self.sigma,
             information,
+            centre_m: [centre.x, centre.y, centre.z],
             degenerate,
             ambiguity: None,
             nn: NnStatsSummary {

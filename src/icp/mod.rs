@@ -24,7 +24,7 @@ pub mod start;
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
 pub use config::{IcpConfig, Metric};
-pub use result::{IcpError, IcpResult, IcpStatus, NnStatsSummary};
+pub use result::{CentredPose, CentredSigma, IcpError, IcpResult, IcpStatus, NnStatsSummary};
 
 /// Row-major 4x4 of a transform: [`crate::geo::rigid::to_rows`].
 pub use crate::geo::rigid::to_rows as matrix_rows;

@@ -79,6 +79,9 @@ pub struct IcpResult {
     /// too few matches.
     #[serde(skip)]
     pub information: Option<FitInformation>,
+    /// Where `shift_m` of [`IcpResult::centred`] is measured: the fit's
+    /// centroid (`information`), else the overlap centre; world CRS metres.
+    pub centre_m: [f64; 3],
     /// Axes held at their initial value because the overlap does not constrain
     /// them (empty when all are measured); the same as `information.degenerate`.
     pub degenerate: Vec<Axis>,
@@ -107,6 +110,49 @@ impl IcpResult {
     /// converged, or converged with degenerate axes held (their information is zero).
     pub fn is_informative(&self) -> bool {
         self.status.is_converged_or_held() && self.information.is_some()
+    }
+}
+
+/// The transform as a user reads it: the shift of the moving DSM at `centre_m`
+/// and the rotation about that point, with one-sigma standard errors (None:
+/// degenerate, held at its start, or not estimated).
+#[derive(Clone, Debug, Serialize)]
+pub struct CentredPose {
+    /// World CRS metres, on the reference (p_ref).
+    pub centre_m: [f64; 3],
+    /// p_ref - p_moving at the centre: [dx, dy, dz] metres.
+    pub shift_m: [f64; 3],
+    /// [roll, pitch, yaw] degrees about the CRS x, y, z axes through the
+    /// centre (R = Rz(yaw) Ry(pitch) Rx(roll)).
+    pub rotation_deg: [f64; 3],
+    pub sigma: CentredSigma,
+}
+
+/// Standard errors of a [`CentredPose`].
+#[derive(Clone, Debug, Serialize)]
+pub struct CentredSigma {
+    pub shift_m: [Option<f64>; 3],
+    pub rotation_deg: [Option<f64>; 3],
+}
+
+impl IcpResult {
+    /// The transform about `centre_m` (see [`CentredPose`]): p_ref = R (p_moving
+    /// - c_m) + c_m + shift with c_m the moving point that lands on the centre.
+    pub fn centred(&self) -> CentredPose {
+        let c = nalgebra::Point3::from(nalgebra::Vector3::from(self.centre_m));
+        let from = self.t_ref_moving.inverse_transform_point(&c);
+        let shift = c - from;
+        let (roll, pitch, yaw) = self.t_ref_moving.rotation.euler_angles();
+        let sigma = self.information.as_ref().map(|i| i.sigma).unwrap_or([None; 6]);
+        CentredPose {
+            centre_m: self.centre_m,
+            shift_m: [shift.x, shift.y, shift.z],
+            rotation_deg: [roll.to_degrees(), pitch.to_degrees(), yaw.to_degrees()],
+            sigma: CentredSigma {
+                shift_m: [sigma[0], sigma[1], sigma[2]],
+                rotation_deg: [sigma[3], sigma[4], sigma[5]],
+            },
+        }
     }
 }
 
