@@ -12,6 +12,7 @@ mod dsmgen;
 mod faults;
 mod fuse_eval;
 mod fuzz;
+mod icpwire;
 mod ingest;
 mod pair_real;
 mod pair_recovery;
