@@ -122,7 +122,12 @@ fn from_start<R: Pyramid, M: Pyramid>(
     starts: &Starts,
     start: &Start,
 ) -> Result<(IcpResult, f64), IcpError> {
-    let overlap = moved_overlap(reference, moving, &start.shift_m)?.ok_or(IcpError::NoOverlap)?;
+    // A start within the paper's tau of the identity is where the ladder
+    // always began: sample the plain overlap as before (same samples, same
+    // results on well-posed pairs); farther, where the moved DSM lands.
+    let near = start.shift_m.xy().norm() < config::PAPER_TAU_M;
+    let sampled = if near { Vector3::zeros() } else { start.shift_m };
+    let overlap = moved_overlap(reference, moving, &sampled)?.ok_or(IcpError::NoOverlap)?;
     let (centre_x, centre_y) = overlap.centre();
     let origin_xy = Vector3::new(centre_x, centre_y, 0.0);
     let top = start_level(reference, moving, &overlap, config.max_level);
