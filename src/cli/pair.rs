@@ -95,7 +95,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         });
         emit_line(&serde_json::to_string_pretty(&value)?)?;
     } else {
-        emit(&table(&args.reference, &args.moving, &result, &pose, seconds))?;
+        emit(&table(
+            &args.reference,
+            &args.moving,
+            &result,
+            &pose,
+            seconds,
+        ))?;
     }
     if !result.status.is_converged_or_held() {
         anyhow::bail!(
@@ -153,21 +159,33 @@ fn table(reference: &str, moving: &str, r: &IcpResult, pose: &CentredPose, secon
         ),
         s => format!("{s:?}"),
     };
-    let _ = writeln!(t, "status      {status} after {} iterations ({seconds:.2} s)", r.iterations);
+    let _ = writeln!(
+        t,
+        "status      {status} after {} iterations ({seconds:.2} s)",
+        r.iterations
+    );
     let (s, ss) = (pose.shift_m, pose.sigma.shift_m);
     let _ = writeln!(
         t,
         "shift       dx {}  dy {}  dz {} m (p_ref - p_moving, 1 sigma)",
-        pm(s[0], ss[0], 3), pm(s[1], ss[1], 3), pm(s[2], ss[2], 3)
+        pm(s[0], ss[0], 3),
+        pm(s[1], ss[1], 3),
+        pm(s[2], ss[2], 3)
     );
     let (a, sa) = (pose.rotation_deg, pose.sigma.rotation_deg);
     let _ = writeln!(
         t,
         "rotation    roll {}  pitch {}  yaw {} deg",
-        pm(a[0], sa[0], 5), pm(a[1], sa[1], 5), pm(a[2], sa[2], 5)
+        pm(a[0], sa[0], 5),
+        pm(a[1], sa[1], 5),
+        pm(a[2], sa[2], 5)
     );
     let c = pose.centre_m;
-    let _ = writeln!(t, "  about     ({:.2}, {:.2}, {:.2}) m: the fit's centre", c[0], c[1], c[2]);
+    let _ = writeln!(
+        t,
+        "  about     ({:.2}, {:.2}, {:.2}) m: the fit's centre",
+        c[0], c[1], c[2]
+    );
     if let Some(amb) = r.ambiguity {
         let _ = writeln!(
             t,

@@ -88,7 +88,11 @@ impl IcpConfig {
     /// on 30 m DSMs 3 pixels (the NN distance alone reaches 0.7 pixel).
     pub fn tau_at(&self, level: usize, pixel_m: f64, coarse_cost_m: f64) -> f64 {
         let scale = (1u64 << level) as f64;
-        let cost = if coarse_cost_m.is_finite() { coarse_cost_m } else { 0.0 };
+        let cost = if coarse_cost_m.is_finite() {
+            coarse_cost_m
+        } else {
+            0.0
+        };
         let auto = (PAPER_TAU_M * scale).max(3.0 * pixel_m).max(4.0 * cost);
         auto.min(self.tau_m * scale)
     }

@@ -83,16 +83,13 @@ fn choose(mut tried: Vec<(IcpResult, f64)>, ambiguity: Option<f64>, pixel_m: f64
     if !several {
         return best;
     }
-    let elsewhere = tried.find(|(r, _)| {
-        r.status.is_converged_or_held() && differs(&best, r, pixel_m)
-    });
+    let elsewhere =
+        tried.find(|(r, _)| r.status.is_converged_or_held() && differs(&best, r, pixel_m));
     best.ambiguity = Some(match &elsewhere {
         Some((_, cost)) if *cost > 0.0 => (best_cost / cost).min(1.0),
         _ => 0.0,
     });
-    if best.status.is_converged_or_held()
-        && best.ambiguity.unwrap_or(0.0) > AMBIGUOUS_COST_RATIO
-    {
+    if best.status.is_converged_or_held() && best.ambiguity.unwrap_or(0.0) > AMBIGUOUS_COST_RATIO {
         best.status = IcpStatus::Ambiguous;
     }
     best
@@ -126,7 +123,11 @@ fn from_start<R: Pyramid, M: Pyramid>(
     // always began: sample the plain overlap as before (same samples, same
     // results on well-posed pairs); farther, where the moved DSM lands.
     let near = start.shift_m.xy().norm() < config::PAPER_TAU_M;
-    let sampled = if near { Vector3::zeros() } else { start.shift_m };
+    let sampled = if near {
+        Vector3::zeros()
+    } else {
+        start.shift_m
+    };
     let overlap = moved_overlap(reference, moving, &sampled)?.ok_or(IcpError::NoOverlap)?;
     let (centre_x, centre_y) = overlap.centre();
     let origin_xy = Vector3::new(centre_x, centre_y, 0.0);
@@ -169,7 +170,10 @@ fn from_start<R: Pyramid, M: Pyramid>(
 
 /// The reference's pixel on overview `index`, metres.
 fn level_pixel_m<R: Pyramid>(reference: &R, index: usize) -> Result<f64, IcpError> {
-    let gt = reference.open_level(index).map_err(IcpError::Read)?.geotransform();
+    let gt = reference
+        .open_level(index)
+        .map_err(IcpError::Read)?
+        .geotransform();
     Ok(gt.gsd_x().max(gt.gsd_y()))
 }
 

@@ -143,7 +143,11 @@ impl IcpResult {
         let from = self.t_ref_moving.inverse_transform_point(&c);
         let shift = c - from;
         let (roll, pitch, yaw) = self.t_ref_moving.rotation.euler_angles();
-        let sigma = self.information.as_ref().map(|i| i.sigma).unwrap_or([None; 6]);
+        let sigma = self
+            .information
+            .as_ref()
+            .map(|i| i.sigma)
+            .unwrap_or([None; 6]);
         CentredPose {
             centre_m: self.centre_m,
             shift_m: [shift.x, shift.y, shift.z],

@@ -43,7 +43,10 @@ pub fn find_starts<R: Pyramid, M: Pyramid>(
     moving: &M,
     config: &IcpConfig,
 ) -> Result<Starts, IcpError> {
-    let g = reference.open_level(0).map_err(IcpError::Read)?.geotransform();
+    let g = reference
+        .open_level(0)
+        .map_err(IcpError::Read)?
+        .geotransform();
     let h = moving.open_level(0).map_err(IcpError::Read)?.geotransform();
     let pixel_m = g.gsd_x().max(h.gsd_x()).max(g.gsd_y()).max(h.gsd_y());
     let radius_m = config.search_radius_m(pixel_m);

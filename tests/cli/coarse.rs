@@ -6,8 +6,6 @@
 //! `cargo test --release --test robust_coarse -- --ignored --nocapture` runs
 //! the experiment behind the table in docs/pending/robust.md.
 
-
-
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Instant;

@@ -1,7 +1,5 @@
 //! `dsmgen tiles --render ...` and the scene flags, run as the built binary.
 
-
-
 use std::process::Command;
 
 use dsmstream::synth::{Rendering, Truth};

@@ -107,7 +107,10 @@ fn srtm_pair_is_found_at_default_flags() {
     // sigmas are reported for every axis of a well-posed pair
     for k in 0..3 {
         assert!(doc["sigma"]["shift_m"][k].as_f64().unwrap() > 0.0, "{doc}");
-        assert!(doc["sigma"]["rotation_deg"][k].as_f64().unwrap() > 0.0, "{doc}");
+        assert!(
+            doc["sigma"]["rotation_deg"][k].as_f64().unwrap() > 0.0,
+            "{doc}"
+        );
     }
 }
 
@@ -186,7 +189,14 @@ fn calibration_of_the_reported_sigmas() {
             for seed in ["1", "2", "3"] {
                 let dir = tempfile::tempdir().unwrap();
                 let args = [
-                    "--size", size, "--overlap", overlap, "--render", render, "--seed", seed,
+                    "--size",
+                    size,
+                    "--overlap",
+                    overlap,
+                    "--render",
+                    render,
+                    "--seed",
+                    seed,
                 ];
                 let (store, truth) = generated(dir.path(), &args);
                 let (code, doc) = pair(&store, "tile_00", "tile_01");
@@ -213,7 +223,9 @@ fn calibration_of_the_reported_sigmas() {
             }
         }
     }
-    println!("| axis | pairs with sigma | <= 1 sigma | <= 2 sigma | <= 3 sigma | worst |error|/sigma |");
+    println!(
+        "| axis | pairs with sigma | <= 1 sigma | <= 2 sigma | <= 3 sigma | worst |error|/sigma |"
+    );
     println!("|---|---|---|---|---|---|");
     let names = ["x", "y", "z", "roll", "pitch", "yaw"];
     let mut worst_3 = 1.0f64;
@@ -231,5 +243,8 @@ fn calibration_of_the_reported_sigmas() {
         );
     }
     println!("pairs not converged (excluded): {skipped:?}");
-    assert!(worst_3 >= 0.99, "within 3 sigma on the worst axis: {worst_3:.3}");
+    assert!(
+        worst_3 >= 0.99,
+        "within 3 sigma on the worst axis: {worst_3:.3}"
+    );
 }
