@@ -78,7 +78,7 @@ fn generated(dir: &Path, args: &[&str]) -> (std::path::PathBuf, Isometry3<f64>) 
     all.extend_from_slice(args);
     dsmgen_tiles(&all, &tiles);
     let store = dir.join("s.zarr");
-    ingest(&[tiles.clone()], &store);
+    ingest(std::slice::from_ref(&tiles), &store);
     let t = truth(&tiles, "tile_00", "tile_01");
     (store, t)
 }
