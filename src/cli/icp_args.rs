@@ -19,9 +19,11 @@ pub struct IcpArgs {
     /// Residual: point-to-surface (default, sub-pixel), point-to-plane (NN point + grid normal), point-to-point (the paper's Kabsch).
     #[arg(long, value_enum, default_value_t = defaults().metric)]
     pub metric: Metric,
-    /// Outlier threshold on the nearest-neighbour distance, metres (paper: 10).
-    #[arg(long, default_value_t = defaults().tau_m)]
-    pub tau: f64,
+    /// Upper bound on the outlier threshold (nearest-neighbour distance at full
+    /// resolution, metres, doubled per overview level). Default: automatic,
+    /// max(10 m, 3 pixels, 4 x the initial search's residual spread) per level.
+    #[arg(long)]
+    pub tau: Option<f64>,
     /// Query points sampled from the moving DSM in the overlap (all valid
     /// pixels when the overlap has fewer).
     #[arg(long, default_value_t = defaults().samples)]
@@ -29,9 +31,11 @@ pub struct IcpArgs {
     /// Iterations per pyramid level.
     #[arg(long, default_value_t = defaults().max_iter)]
     pub max_iter: usize,
-    /// Largest motion accepted, metres; caps the search at coarse levels.
-    #[arg(long, default_value_t = defaults().max_displacement_m)]
-    pub max_displacement: f64,
+    /// Radius of the global initial search (metres per horizontal axis) and
+    /// largest motion ICP may make from there. Default: max(100 m, 40 pixels)
+    /// (1.2 km on 30 m DSMs). Vertical offsets need no radius.
+    #[arg(long)]
+    pub max_displacement: Option<f64>,
     /// Coarsest overview level used for coarse-to-fine (0 = full resolution only).
     #[arg(long, default_value_t = defaults().max_level)]
     pub max_level: usize,
@@ -52,10 +56,10 @@ impl Default for IcpArgs {
         IcpArgs {
             model: d.model,
             metric: d.metric,
-            tau: d.tau_m,
+            tau: None,
             samples: d.samples,
             max_iter: d.max_iter,
-            max_displacement: d.max_displacement_m,
+            max_displacement: None,
             max_level: d.max_level,
             seed: d.seed,
             max_roughness: d.max_roughness_m,
@@ -69,10 +73,11 @@ impl IcpArgs {
     // `!(x > 0.0)` on purpose: NaN must be refused too
     #[allow(clippy::neg_cmp_op_on_partial_ord)]
     pub fn to_config(&self) -> anyhow::Result<IcpConfig> {
-        if !(self.tau > 0.0)
+        let positive = |v: Option<f64>| v.is_none_or(|v| v > 0.0);
+        if !positive(self.tau)
             || self.samples == 0
             || self.max_iter == 0
-            || !(self.max_displacement > 0.0)
+            || !positive(self.max_displacement)
             || !(self.max_roughness > 0.0)
         {
             return Err(InputError::new(
@@ -83,10 +88,10 @@ impl IcpArgs {
         Ok(IcpConfig {
             model: self.model,
             metric: self.metric,
-            tau_m: self.tau,
+            tau_m: self.tau.unwrap_or(f64::INFINITY),
             samples: self.samples,
             max_iter: self.max_iter,
-            max_displacement_m: self.max_displacement,
+            max_displacement_m: self.max_displacement.unwrap_or(f64::INFINITY),
             seed: self.seed,
             max_level: self.max_level,
             max_roughness_m: self.max_roughness,

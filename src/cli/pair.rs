@@ -1,10 +1,16 @@
 //! `dsmstream pair <store> <ref-id> <moving-id>`: one pairwise DSM-ICP through
-//! the chunk cache, printed as a table or JSON (the transform as
-//! `matrix_world`, the name poses.json uses).
+//! the chunk cache, printed as a table or JSON: the shift at the fit's centre
+//! and the rotation about it with their standard errors, the status, held
+//! (degenerate) axes, the ambiguity of the global search, and the transform
+//! as `matrix_world` (the name poses.json uses).
+//!
+//! Exit 0 when converged, or converged with degenerate axes held (said so);
+//! 1 otherwise (not converged, ambiguous, diverged, too few inliers) with a
+//! one-line reason; 2 for bad input.
 
 use std::path::PathBuf;
 
-use dsmstream::icp::{matrix_rows, register, IcpError, IcpResult};
+use dsmstream::icp::{matrix_rows, register, CentredPose, IcpError, IcpResult, IcpStatus};
 use dsmstream::store::StorePyramid;
 use dsmstream::InputError;
 
@@ -65,71 +71,139 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let seconds = started.elapsed().as_secs_f64();
     cache.log_stats();
+    let pose = result.centred();
     if args.json {
         let mut result_json = serde_json::to_value(&result)?;
         if let Some(obj) = result_json.as_object_mut() {
             if let Some(m) = obj.remove("m_world") {
                 obj.insert("matrix_world".into(), m);
             }
+            // the centred sigmas next to the historical local ones
+            if let Some(sigma) = obj.get_mut("sigma").and_then(|v| v.as_object_mut()) {
+                sigma.insert("shift_m".into(), serde_json::to_value(pose.sigma.shift_m)?);
+                let rot = serde_json::to_value(pose.sigma.rotation_deg)?;
+                sigma.insert("rotation_deg".into(), rot);
+            }
         }
         let value = serde_json::json!({
             "reference": args.reference, "moving": args.moving, "seconds": seconds,
+            "status": result.status, "centre_m": pose.centre_m, "shift_m": pose.shift_m,
+            "rotation_deg": pose.rotation_deg, "sigma": pose.sigma,
+            "degenerate": result.degenerate, "ambiguity": result.ambiguity,
+            "matrix_world": matrix_rows(&result.t_ref_moving),
             "result": result_json, "cache": cache.stats(),
         });
         emit_line(&serde_json::to_string_pretty(&value)?)?;
     } else {
-        emit(&table(&args.reference, &args.moving, &result, seconds))?;
+        emit(&table(
+            &args.reference,
+            &args.moving,
+            &result,
+            &pose,
+            seconds,
+        ))?;
     }
-    if !result.is_usable() {
+    if !result.status.is_converged_or_held() {
         anyhow::bail!(
-            "registration of {} to {} is not usable: {:?}",
+            "registration of {} to {} is not usable: {}",
             args.moving,
             args.reference,
-            result.status
+            reason(&result)
         );
     }
     Ok(())
 }
 
+/// Why a result is not usable, in one line.
+fn reason(r: &IcpResult) -> String {
+    match r.status {
+        IcpStatus::MaxIterations => format!(
+            "not converged after {} iterations (raise --max-iter, or the surfaces disagree)",
+            r.iterations
+        ),
+        IcpStatus::Ambiguous => format!(
+            "ambiguous: another place fits nearly as well (cost ratio {:.2})",
+            r.ambiguity.unwrap_or(f64::NAN)
+        ),
+        IcpStatus::Diverged => {
+            "diverged: the fit grew worse or moved beyond --max-displacement".into()
+        }
+        IcpStatus::TooFewInliers => {
+            "too few inliers: the DSMs do not match within tau (try a larger --max-displacement)"
+                .into()
+        }
+        IcpStatus::Degenerate => "degenerate: no direction is constrained".into(),
+        IcpStatus::Converged => "converged".into(),
+    }
+}
+
+/// "x, y, yaw".
+fn axes(r: &IcpResult) -> String {
+    let names: Vec<&str> = r.degenerate.iter().map(|a| a.label()).collect();
+    names.join(", ")
+}
+
 /// The result as the text table `pair` prints.
-fn table(reference: &str, moving: &str, r: &IcpResult, seconds: f64) -> String {
+fn table(reference: &str, moving: &str, r: &IcpResult, pose: &CentredPose, seconds: f64) -> String {
     use std::fmt::Write as _;
     let mut t = String::new();
-    let m = matrix_rows(&r.t_ref_moving);
-    let rot = nalgebra::Matrix3::from_fn(|a, b| m[a][b]);
-    let angle_deg = ((rot.trace() - 1.0) / 2.0)
-        .clamp(-1.0, 1.0)
-        .acos()
-        .to_degrees();
+    let pm = |v: f64, s: Option<f64>, digits: usize| match s {
+        Some(s) => format!("{v:.digits$} ± {s:.digits$}"),
+        None => format!("{v:.digits$} (held)"),
+    };
     let _ = writeln!(t, "pair        {moving} -> {reference}");
+    let status = match r.status {
+        IcpStatus::Degenerate if !r.degenerate.is_empty() => format!(
+            "converged, degenerate in {}: held at the start (not measured)",
+            axes(r)
+        ),
+        s => format!("{s:?}"),
+    };
     let _ = writeln!(
         t,
-        "status      {:?} after {} iterations ({seconds:.2} s)",
-        r.status, r.iterations
+        "status      {status} after {} iterations ({seconds:.2} s)",
+        r.iterations
+    );
+    let (s, ss) = (pose.shift_m, pose.sigma.shift_m);
+    let _ = writeln!(
+        t,
+        "shift       dx {}  dy {}  dz {} m (p_ref - p_moving, 1 sigma)",
+        pm(s[0], ss[0], 3),
+        pm(s[1], ss[1], 3),
+        pm(s[2], ss[2], 3)
+    );
+    let (a, sa) = (pose.rotation_deg, pose.sigma.rotation_deg);
+    let _ = writeln!(
+        t,
+        "rotation    roll {}  pitch {}  yaw {} deg",
+        pm(a[0], sa[0], 5),
+        pm(a[1], sa[1], 5),
+        pm(a[2], sa[2], 5)
+    );
+    let c = pose.centre_m;
+    let _ = writeln!(
+        t,
+        "  about     ({:.2}, {:.2}, {:.2}) m: the fit's centre",
+        c[0], c[1], c[2]
+    );
+    if let Some(amb) = r.ambiguity {
+        let _ = writeln!(
+            t,
+            "ambiguity   {amb:.2} (best / second-best fit of the global search; near 1: another place fits as well)"
+        );
+    }
+    let _ = writeln!(
+        t,
+        "residuals   {:.4} m to the reference surface, {:.4} m to its nearest pixel (RMS, inliers)",
+        r.rmse_plane_m, r.rmse_m
     );
     let _ = writeln!(
         t,
-        "rmse        {:.4} m (NN distance, inliers)   plane rmse {:.4} m",
-        r.rmse_m, r.rmse_plane_m
-    );
-    let _ = writeln!(
-        t,
-        "inliers     {} of {} samples   overlap {:.3}",
+        "inliers     {} of {} samples   overlap {:.3} (samples with reference below)",
         r.inliers, r.samples, r.overlap
     );
-    let _ = writeln!(
-        t,
-        "rotation    {angle_deg:.6} deg   constraint ratio {:.2e}",
-        r.constraint_ratio
-    );
-    let (sr, st) = (r.sigma.rot_deg, r.sigma.trans_m);
-    let _ = writeln!(
-        t,
-        "1-sigma     tilt {:.5} {:.5} deg  yaw {:.5} deg  shift {:.4} {:.4} {:.4} m",
-        sr[0], sr[1], sr[2], st[0], st[1], st[2]
-    );
     let _ = writeln!(t, "matrix_world (p_ref = M p_moving):");
-    for row in m {
+    for row in matrix_rows(&r.t_ref_moving) {
         let _ = writeln!(
             t,
             "  [{:>16.9} {:>16.9} {:>16.9} {:>18.6}]",

@@ -23,13 +23,17 @@ pub enum Metric {
 pub struct IcpConfig {
     pub model: Model,
     pub metric: Metric,
-    /// Outlier threshold on the NN distance at full resolution (paper: 10 m).
+    /// Upper bound on the outlier threshold (NN distance) at full resolution,
+    /// doubled per overview level; infinite (the default): the threshold
+    /// follows the pyramid alone ([`IcpConfig::tau_at`]).
     pub tau_m: f64,
     /// Query points sampled from the moving DSM.
     pub samples: usize,
     /// Iterations per level.
     pub max_iter: usize,
-    /// Largest motion accepted; also caps the NN search radius at coarse levels.
+    /// Radius of the global initial search (metres per horizontal axis) and
+    /// largest motion ICP may make from its start; infinite (the default):
+    /// [`IcpConfig::search_radius_m`]'s rule.
     pub max_displacement_m: f64,
     pub seed: u64,
     /// Coarsest overview level used (coarse-to-fine starts there); 0 = full resolution only.
@@ -47,10 +51,10 @@ impl Default for IcpConfig {
         IcpConfig {
             model: Model::Rigid,
             metric: Metric::PointToSurface,
-            tau_m: 10.0,
+            tau_m: f64::INFINITY,
             samples: 200_000,
             max_iter: 40,
-            max_displacement_m: 100.0,
+            max_displacement_m: f64::INFINITY,
             seed: 1,
             max_level: 3,
             tolerance_m: 1e-4,
@@ -59,8 +63,40 @@ impl Default for IcpConfig {
     }
 }
 
-/// Constraint ratio below which a fit is called degenerate.
-pub(super) const DEGENERATE_RATIO: f64 = 1e-6;
+/// The outlier threshold's floor at full resolution (the paper's 10 m).
+pub const PAPER_TAU_M: f64 = 10.0;
+
+/// The automatic search radius: metres, and pixels of the coarser DSM.
+pub const AUTO_RADIUS_M: f64 = 100.0;
+pub const AUTO_RADIUS_PX: f64 = 40.0;
+
+impl IcpConfig {
+    /// The search radius for DSMs of `gsd_m` pixels: `max_displacement_m` when
+    /// set, else max(100 m, 40 pixels) (1.2 km on 30 m DSMs).
+    pub fn search_radius_m(&self, gsd_m: f64) -> f64 {
+        if self.max_displacement_m.is_finite() {
+            self.max_displacement_m
+        } else {
+            AUTO_RADIUS_M.max(AUTO_RADIUS_PX * gsd_m)
+        }
+    }
+
+    /// The outlier threshold on overview `level` (pixels of `pixel_m`) after a
+    /// global search whose residual spread was `coarse_cost_m`:
+    /// max(10 m x 2^level, 3 pixels, 4 x the spread), never above
+    /// `tau_m` x 2^level. On 0.5 m city tiles this is the paper's 10 m x 2^level;
+    /// on 30 m DSMs 3 pixels (the NN distance alone reaches 0.7 pixel).
+    pub fn tau_at(&self, level: usize, pixel_m: f64, coarse_cost_m: f64) -> f64 {
+        let scale = (1u64 << level) as f64;
+        let cost = if coarse_cost_m.is_finite() {
+            coarse_cost_m
+        } else {
+            0.0
+        };
+        let auto = (PAPER_TAU_M * scale).max(3.0 * pixel_m).max(4.0 * cost);
+        auto.min(self.tau_m * scale)
+    }
+}
 
 /// Samples per iteration on the coarse levels and in the first phase of the
 /// full-resolution level (see `level`).

@@ -5,10 +5,9 @@
 use nalgebra::Isometry3;
 
 use super::associate::Association;
-use super::config::DEGENERATE_RATIO;
 use super::robust::{smooth_only, weighted};
 use super::{IcpConfig, IcpError, IcpStatus, Metric};
-use crate::fit::{point_to_plane, point_to_point, Correspondence, FitSigma};
+use crate::fit::{point_to_plane_with, point_to_point, Correspondence, DegeneracyRule, FitSigma};
 
 /// Where one run of the loop over a fixed point set ended.
 pub(super) struct Phase {
@@ -66,12 +65,21 @@ impl Convergence {
     }
 }
 
+/// What one level's loop holds and refuses: the degeneracy rule of its fits
+/// and the largest translation (metres) from `start` it accepts.
+pub(super) struct Rules {
+    pub degeneracy: DegeneracyRule,
+    pub start: Isometry3<f64>,
+    pub cap_m: f64,
+}
+
 /// The loop on one point set, matched by `associate` at a given estimate.
 pub(super) fn iterate(
     mut t_ref_moving: Isometry3<f64>,
     min_inliers: usize,
     stop: &Convergence,
     config: &IcpConfig,
+    rules: &Rules,
     associate: &mut dyn FnMut(&Isometry3<f64>) -> Result<Association, IcpError>,
 ) -> Result<Phase, IcpError> {
     let mut phase = Phase {
@@ -94,20 +102,21 @@ pub(super) fn iterate(
             config.metric,
         );
         // 3. fit the update that brings the matches together
-        let step = fit(&corrs, config);
+        let Some(step) = fit(&corrs, config, &rules.degeneracy) else {
+            // not one direction the surface constrains
+            phase.status = IcpStatus::Degenerate;
+            break;
+        };
         if let Some(sigma) = step.sigma {
             phase.sigma = sigma;
         }
         phase.constraint_ratio = step.constraint_ratio;
-        if step.constraint_ratio < DEGENERATE_RATIO {
-            phase.status = IcpStatus::Degenerate;
-            break;
-        }
         // 4. update the estimate and check the stopping rule
         t_ref_moving = step.update * t_ref_moving;
         phase.t_ref_moving = t_ref_moving;
         tracing::trace!(t = ?t_ref_moving.translation.vector, n = corrs.len(), "iteration");
-        if t_ref_moving.translation.vector.norm() > config.max_displacement_m {
+        let moved = t_ref_moving.translation.vector - rules.start.translation.vector;
+        if moved.norm() > rules.cap_m {
             phase.status = IcpStatus::Diverged;
             break;
         }
@@ -127,29 +136,24 @@ struct Step {
     sigma: Option<FitSigma>,
 }
 
-/// Point-to-plane (both plane metrics) or Kabsch; a failed plane fit is a
-/// zero step with ratio 0 (degenerate), a failed Kabsch a zero step.
-fn fit(corrs: &[Correspondence], config: &IcpConfig) -> Step {
+/// Point-to-plane (both plane metrics, degenerate directions held by `rule`)
+/// or Kabsch; None when the plane fit constrains no direction. A failed
+/// Kabsch is a zero step.
+fn fit(corrs: &[Correspondence], config: &IcpConfig, rule: &DegeneracyRule) -> Option<Step> {
     match config.metric {
         Metric::PointToPlane | Metric::PointToSurface => {
-            match point_to_plane(corrs, config.model) {
-                Some(f) => Step {
-                    update: f.update,
-                    constraint_ratio: f.constraint_ratio,
-                    sigma: Some(f.sigma),
-                },
-                None => Step {
-                    update: Isometry3::identity(),
-                    constraint_ratio: 0.0,
-                    sigma: None,
-                },
-            }
+            let f = point_to_plane_with(corrs, config.model, rule)?;
+            Some(Step {
+                update: f.update,
+                constraint_ratio: f.constraint_ratio,
+                sigma: Some(f.sigma),
+            })
         }
-        Metric::PointToPoint => Step {
+        Metric::PointToPoint => Some(Step {
             update: point_to_point(corrs, config.model).unwrap_or_else(Isometry3::identity),
             constraint_ratio: 1.0,
             sigma: None,
-        },
+        }),
     }
 }
 

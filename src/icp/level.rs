@@ -6,10 +6,11 @@ use nalgebra::{Isometry3, Vector3};
 
 use super::associate::{block_order, Association, Matcher};
 use super::config::LADDER_SAMPLES;
-use super::iterate::{iterate, Convergence, Phase};
+use super::iterate::{iterate, Convergence, Phase, Rules};
+use super::robust::{smooth_only, weighted};
 use super::sample::{pixel_window, sample_overlap};
-use super::{IcpConfig, IcpError, IcpResult, IcpStatus, NnStatsSummary};
-use crate::fit::{Correspondence, FitSigma};
+use super::{IcpConfig, IcpError, IcpResult, IcpStatus, Metric, NnStatsSummary};
+use crate::fit::{fit_information, Correspondence, DegeneracyRule, FitInformation, FitSigma};
 use crate::geo::rigid::isometry_to_world;
 use crate::geo::Bounds;
 use crate::grid::{Grid, Pyramid};
@@ -80,11 +81,14 @@ impl<'a, R: Pyramid> Level<'a, R> {
         Vector3::new(origin_xy.x, origin_xy.y, mean_z)
     }
 
-    /// Runs the level from `t_ref_moving` (local frame about `origin`).
+    /// Runs the level from `t_ref_moving` (local frame about `origin`) with
+    /// outlier threshold `tau_m` and the loop's `rules`.
     pub fn run(
         mut self,
         origin: &Vector3<f64>,
         t_ref_moving: Isometry3<f64>,
+        tau_m: f64,
+        rules: &Rules,
     ) -> Result<LevelOutcome, IcpError> {
         let config = self.config;
         for p in &mut self.samples {
@@ -100,7 +104,7 @@ impl<'a, R: Pyramid> Level<'a, R> {
             reference: self.reference,
             level: self.index,
             frame: PixelFrame::new(&ref_gt, origin),
-            tau_m: (config.tau_m * scale).min(config.max_displacement_m.max(config.tau_m)),
+            tau_m,
             metric: config.metric,
         };
         block_order(&mut self.samples, &matcher.frame, 256);
@@ -116,7 +120,7 @@ impl<'a, R: Pyramid> Level<'a, R> {
             &mut full_memo,
             t_ref_moving,
             &stop,
-            config,
+            (config, rules),
             &mut nn,
         )?;
         let t_ref_moving = phase.t_ref_moving;
@@ -150,7 +154,7 @@ fn ladder<R: Pyramid>(
     full_memo: &mut [PlaneMemo],
     mut t_ref_moving: Isometry3<f64>,
     stop: &Convergence,
-    config: &IcpConfig,
+    (config, rules): (&IcpConfig, &Rules),
     nn: &mut NnStats,
 ) -> Result<(Phase, usize), IcpError> {
     let stride = points.len().div_ceil(LADDER_SAMPLES);
@@ -169,7 +173,7 @@ fn ladder<R: Pyramid>(
     let mut iterations = 0;
     for (points, memo) in phases {
         let min_inliers = 30.max(points.len() / 100);
-        phase = iterate(t_ref_moving, min_inliers, stop, config, &mut |t| {
+        phase = iterate(t_ref_moving, min_inliers, stop, config, rules, &mut |t| {
             match_at(matcher, points, memo, t, nn)
         })?;
         t_ref_moving = phase.t_ref_moving;
@@ -218,16 +222,64 @@ impl LevelOutcome {
         matches!(self.status, IcpStatus::TooFewInliers | IcpStatus::Diverged)
     }
 
+    /// Robust spread of the final point-to-plane residuals (1.4826 x their
+    /// median absolute deviation), metres: how well the two surfaces agree
+    /// here, comparable between starts of one pair. Infinite without matches.
+    pub fn robust_cost_m(&self) -> f64 {
+        let mut r: Vec<f64> = (self.final_association.corrs.iter())
+            .map(Correspondence::plane_residual_m)
+            .collect();
+        if r.len() < 6 {
+            return f64::INFINITY;
+        }
+        let mid = r.len() / 2;
+        let median = *r.select_nth_unstable_by(mid, f64::total_cmp).1;
+        let mut dev: Vec<f64> = r.iter().map(|v| (v - median).abs()).collect();
+        1.4826 * *dev.select_nth_unstable_by(mid, f64::total_cmp).1
+    }
+
+    /// What the final fit knows, in the local frame: the final matches,
+    /// weighted as the loop weighs them, judged by `rule`. None for
+    /// point-to-point fits or too few matches.
+    pub fn information(&self, config: &IcpConfig, rule: &DegeneracyRule) -> Option<FitInformation> {
+        if config.metric == Metric::PointToPoint {
+            return None;
+        }
+        let a = &self.final_association;
+        let corrs = weighted(
+            smooth_only(a.corrs.clone(), &a.roughness_m, config.max_roughness_m),
+            config.metric,
+        );
+        fit_information(&corrs, config.model, rule)
+    }
+
     /// The registration's result: the transform taken to world coordinates
-    /// (the local frame is the world shifted by `origin`) and the statistics
-    /// of the final matches.
-    pub fn into_result(self, origin: &Vector3<f64>) -> IcpResult {
+    /// (the local frame is the world shifted by `origin`), the statistics
+    /// of the final matches and `information` (local frame) moved to the world.
+    pub fn into_result(
+        self,
+        origin: &Vector3<f64>,
+        information: Option<FitInformation>,
+    ) -> IcpResult {
         let matches = &self.final_association;
         let plane: Vec<f64> = matches
             .corrs
             .iter()
             .map(Correspondence::plane_residual_m)
             .collect();
+        let information = information.map(|mut info| {
+            info.centroid += origin;
+            info
+        });
+        let centre = information.as_ref().map_or(*origin, |i| i.centroid);
+        let degenerate = information
+            .as_ref()
+            .map(|i| i.degenerate.clone())
+            .unwrap_or_default();
+        let status = match self.status {
+            IcpStatus::Converged if !degenerate.is_empty() => IcpStatus::Degenerate,
+            s => s,
+        };
         IcpResult {
             t_ref_moving: isometry_to_world(&self.t_ref_moving, origin),
             rmse_m: rms(&matches.distances_m),
@@ -236,10 +288,13 @@ impl LevelOutcome {
             samples: matches.queries,
             overlap: matches.with_reference_below as f64 / matches.queries.max(1) as f64,
             iterations: self.iterations,
-            status: self.status,
+            status,
             constraint_ratio: self.constraint_ratio,
             sigma: self.sigma,
-            information: None,
+            information,
+            centre_m: [centre.x, centre.y, centre.z],
+            degenerate,
+            ambiguity: None,
             nn: NnStatsSummary {
                 queries: self.nn.queries,
                 pixels_visited: self.nn.pixels_visited,

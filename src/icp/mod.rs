@@ -19,39 +19,139 @@ mod level;
 pub mod result;
 mod robust;
 pub mod sample;
+pub mod start;
 
-use nalgebra::{Isometry3, Vector3};
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
 pub use config::{IcpConfig, Metric};
-pub use result::{IcpError, IcpResult, IcpStatus, NnStatsSummary};
+pub use result::{CentredPose, CentredSigma, IcpError, IcpResult, IcpStatus, NnStatsSummary};
 
 /// Row-major 4x4 of a transform: [`crate::geo::rigid::to_rows`].
 pub use crate::geo::rigid::to_rows as matrix_rows;
 
-use crate::geo::Bounds;
+use crate::fit::DegeneracyRule;
 use crate::grid::{Grid, Pyramid};
+use iterate::Rules;
 use level::{start_level, Level};
+use start::{find_starts, moved_overlap, Start, Starts};
 
-/// Registers `moving` onto `reference` (see module docs): levels from the
-/// coarsest useful one down to full resolution, each starting from the last
-/// one's estimate; a level that fails ends the ladder with its status.
+/// Final robust costs closer than this ratio, at places that differ in a
+/// measured direction, make a pair ambiguous.
+pub const AMBIGUOUS_COST_RATIO: f64 = 0.9;
+
+/// Registers `moving` onto `reference` (see module docs): the global initial
+/// search ([`start`]) gives one start (or the best few when it is ambiguous);
+/// from each, levels from the coarsest useful one down to full resolution,
+/// each starting from the last one's estimate (a level that fails ends the
+/// ladder with its status). The start whose result fits best is kept.
 pub fn register<R: Pyramid, M: Pyramid>(
     reference: &R,
     moving: &M,
     config: &IcpConfig,
 ) -> Result<IcpResult, IcpError> {
-    let overlap = overlap(reference, moving)?;
+    let starts = find_starts(reference, moving, config)?;
+    let mut tried: Vec<(IcpResult, f64)> = Vec::new();
+    let mut first_error = None;
+    for start in &starts.starts {
+        match from_start(reference, moving, config, &starts, start) {
+            Ok(r) => tried.push(r),
+            Err(e) => {
+                first_error.get_or_insert(e);
+            }
+        }
+    }
+    if tried.is_empty() {
+        return Err(first_error.unwrap_or(IcpError::EmptyOverlap));
+    }
+    Ok(choose(tried, starts.ambiguity, starts.pixel_m))
+}
+
+/// The best of the results from several starts: usable before not, then the
+/// lowest robust cost. With several, the ambiguity becomes the ratio of the
+/// two best costs among results at different places, and a ratio above
+/// [`AMBIGUOUS_COST_RATIO`] makes the pair `Ambiguous`.
+fn choose(mut tried: Vec<(IcpResult, f64)>, ambiguity: Option<f64>, pixel_m: f64) -> IcpResult {
+    let rank = |r: &(IcpResult, f64)| (!r.0.status.is_converged_or_held(), r.1);
+    tried.sort_by(|a, b| {
+        let (ka, kb) = (rank(a), rank(b));
+        ka.0.cmp(&kb.0).then(ka.1.total_cmp(&kb.1))
+    });
+    let several = tried.len() > 1;
+    let mut tried = tried.into_iter();
+    let (mut best, best_cost) = tried.next().expect("at least one start");
+    best.ambiguity = ambiguity;
+    if !several {
+        return best;
+    }
+    let elsewhere =
+        tried.find(|(r, _)| r.status.is_converged_or_held() && differs(&best, r, pixel_m));
+    best.ambiguity = Some(match &elsewhere {
+        Some((_, cost)) if *cost > 0.0 => (best_cost / cost).min(1.0),
+        _ => 0.0,
+    });
+    if best.status.is_converged_or_held() && best.ambiguity.unwrap_or(0.0) > AMBIGUOUS_COST_RATIO {
+        best.status = IcpStatus::Ambiguous;
+    }
+    best
+}
+
+/// True when two results put the moving DSM more than a pixel apart along an
+/// axis the best one measures (a held axis may differ freely).
+fn differs(best: &IcpResult, other: &IcpResult, pixel_m: f64) -> bool {
+    let at = best
+        .information
+        .as_ref()
+        .map(|i| i.centroid)
+        .unwrap_or_else(Vector3::zeros);
+    let p = nalgebra::Point3::from(at);
+    let d = best.t_ref_moving.transform_point(&p) - other.t_ref_moving.transform_point(&p);
+    (0..3).any(|k| {
+        let held = best.degenerate.iter().any(|a| a.index() == k);
+        !held && d[k].abs() > pixel_m
+    })
+}
+
+/// The coarse-to-fine ladder from one start; the result and its robust cost.
+fn from_start<R: Pyramid, M: Pyramid>(
+    reference: &R,
+    moving: &M,
+    config: &IcpConfig,
+    starts: &Starts,
+    start: &Start,
+) -> Result<(IcpResult, f64), IcpError> {
+    // A start within the paper's tau of the identity is where the ladder
+    // always began: sample the plain overlap as before (same samples, same
+    // results on well-posed pairs); farther, where the moved DSM lands.
+    let near = start.shift_m.xy().norm() < config::PAPER_TAU_M;
+    let sampled = if near {
+        Vector3::zeros()
+    } else {
+        start.shift_m
+    };
+    let overlap = moved_overlap(reference, moving, &sampled)?.ok_or(IcpError::NoOverlap)?;
     let (centre_x, centre_y) = overlap.centre();
     let origin_xy = Vector3::new(centre_x, centre_y, 0.0);
-    let start = start_level(reference, moving, &overlap, config.max_level);
+    let top = start_level(reference, moving, &overlap, config.max_level);
     // fixed by the coarsest level's samples, then kept by the finer ones
     let mut origin: Option<Vector3<f64>> = None;
-    let mut t_ref_moving_local = Isometry3::identity();
+    // a pure translation is the same in the local frame
+    let t_start = Isometry3::from_parts(
+        Translation3::from(start.shift_m),
+        UnitQuaternion::identity(),
+    );
+    let mut t_ref_moving_local = t_start;
     let mut last = None;
-    for index in (0..=start).rev() {
+    for index in (0..=top).rev() {
         let level = Level::sample(reference, moving, index, &overlap, &origin_xy, config)?;
         let origin = *origin.get_or_insert_with(|| level.origin(&origin_xy));
-        let outcome = level.run(&origin, t_ref_moving_local)?;
+        let pixel_m = level_pixel_m(reference, index)?.max(starts.pixel_m);
+        let rules = Rules {
+            degeneracy: level_rule(index, starts.pixel_m),
+            start: t_start,
+            cap_m: starts.radius_m,
+        };
+        let tau_m = config.tau_at(index, pixel_m, start.cost_m);
+        let outcome = level.run(&origin, t_ref_moving_local, tau_m, &rules)?;
         t_ref_moving_local = outcome.t_ref_moving;
         let failed = outcome.failed();
         last = Some(outcome);
@@ -60,17 +160,46 @@ pub fn register<R: Pyramid, M: Pyramid>(
         }
     }
     let outcome = last.expect("at least one level");
-    Ok(outcome.into_result(&origin.unwrap_or(origin_xy)))
+    let cost = outcome.robust_cost_m();
+    let information = outcome.information(config, &final_rule(starts.pixel_m));
+    Ok((
+        outcome.into_result(&origin.unwrap_or(origin_xy), information),
+        cost,
+    ))
 }
 
-/// The common box of the two DSMs' full-resolution rasters.
-fn overlap<R: Pyramid, M: Pyramid>(reference: &R, moving: &M) -> Result<Bounds, IcpError> {
-    let extent = |g: &dyn Grid| g.geotransform().extent(g.width() as u64, g.height() as u64);
-    let ref0 = reference.open_level(0).map_err(IcpError::Read)?;
-    let mov0 = moving.open_level(0).map_err(IcpError::Read)?;
-    extent(&ref0)
-        .intersection(&extent(&mov0))
-        .ok_or(IcpError::NoOverlap)
+/// The reference's pixel on overview `index`, metres.
+fn level_pixel_m<R: Pyramid>(reference: &R, index: usize) -> Result<f64, IcpError> {
+    let gt = reference
+        .open_level(index)
+        .map_err(IcpError::Read)?
+        .geotransform();
+    Ok(gt.gsd_x().max(gt.gsd_y()))
+}
+
+/// Which directions the loop holds on overview `index`: on the overviews only
+/// those the surface does not see at all (their residuals are still large,
+/// their sigmas would hold directions that are merely not yet converged); at
+/// full resolution also those pinned worse than [`final_rule`] says.
+fn level_rule(index: usize, pixel_m: f64) -> DegeneracyRule {
+    if index == 0 {
+        final_rule(pixel_m)
+    } else {
+        DegeneracyRule {
+            max_sigma_m: f64::INFINITY,
+            ..DegeneracyRule::default()
+        }
+    }
+}
+
+/// A direction is degenerate when its standard error exceeds half a
+/// full-resolution pixel (at least 0.5 m; rotations as the arc at the RMS
+/// radius of the overlap), or its information is 1e-6 of the best one's.
+pub fn final_rule(pixel_m: f64) -> DegeneracyRule {
+    DegeneracyRule {
+        max_sigma_m: DegeneracyRule::default().max_sigma_m.max(0.5 * pixel_m),
+        ..DegeneracyRule::default()
+    }
 }
 
 #[cfg(test)]

@@ -4,20 +4,46 @@
 use nalgebra::Isometry3;
 use serde::Serialize;
 
-use crate::fit::{FitInformation, FitSigma};
+use crate::fit::{Axis, FitInformation, FitSigma};
 
-/// How a registration ended.
+/// How a registration ended, and so what it measured.
+///
+/// | status | transform | weight in a graph |
+/// |---|---|---|
+/// | `Converged` | measured in all directions | full, by `information` |
+/// | `Degenerate` | converged; the axes in `IcpResult::degenerate` were held at their start (flat ground, a ridge, a narrow strip) | by `information` only (zero along the held axes); `None` information: nothing measured |
+/// | `MaxIterations` | still moving when the iterations ran out | not at full weight |
+/// | `Ambiguous` | converged, but another start converged to a different place nearly as well | not at full weight |
+/// | `TooFewInliers`, `Diverged` | not measured | none |
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum IcpStatus {
     Converged,
-    /// Ran out of iterations while still moving (result may still be usable).
+    /// Ran out of iterations while still moving: not trusted at full weight.
     MaxIterations,
-    /// Some direction is not constrained by the surface (e.g. flat terrain).
+    /// Converged with some directions not constrained by the surface (e.g.
+    /// flat terrain): those were held at their initial value (see
+    /// `IcpResult::degenerate`); the others are measured.
     Degenerate,
     TooFewInliers,
     /// The error grew, or the motion exceeded the displacement cap.
     Diverged,
+    /// Two starts of the global search converged to different places with
+    /// nearly the same robust cost (a repetitive or featureless scene).
+    Ambiguous,
+}
+
+impl IcpStatus {
+    /// The transform is measured in every direction and can be used at full weight.
+    pub fn is_converged(self) -> bool {
+        self == IcpStatus::Converged
+    }
+
+    /// Converged, possibly with held (degenerate) axes: the transform is
+    /// measured along the directions the result's `information` constrains.
+    pub fn is_converged_or_held(self) -> bool {
+        matches!(self, IcpStatus::Converged | IcpStatus::Degenerate)
+    }
 }
 
 /// The outcome of one pairwise registration.
@@ -44,11 +70,25 @@ pub struct IcpResult {
     /// metrics; zero for point-to-point), in the local frame at the overlap.
     #[serde(default)]
     pub sigma: FitSigma,
-    /// The final fit's information, standard errors per axis and degenerate
-    /// directions, about `FitInformation::centroid` in the world frame
-    /// (None until the ICP computes it).
+    /// What the final fit knows, in the WORLD frame: a left perturbation
+    /// p_ref -> R_d (p_ref - c) + c + t_d of the returned transform, with c =
+    /// `FitInformation::centroid` (world CRS metres, the weighted centroid of
+    /// the final inliers mapped onto the reference) and axes along the CRS
+    /// axes; order (x, y, z [m], roll, pitch, yaw [rad]). Degenerate axes carry
+    /// zero information. None for point-to-point fits and when the fit had
+    /// too few matches.
     #[serde(skip)]
     pub information: Option<FitInformation>,
+    /// Where `shift_m` of [`IcpResult::centred`] is measured: the fit's
+    /// centroid (`information`), else the overlap centre; world CRS metres.
+    pub centre_m: [f64; 3],
+    /// Axes held at their initial value because the overlap does not constrain
+    /// them (empty when all are measured); the same as `information.degenerate`.
+    pub degenerate: Vec<Axis>,
+    /// The global search's best cost over its second-best (0: one clear
+    /// candidate, near 1: a second place fits nearly as well); None when the
+    /// search was not run.
+    pub ambiguity: Option<f64>,
     pub nn: NnStatsSummary,
 }
 
@@ -59,9 +99,64 @@ pub struct NnStatsSummary {
 }
 
 impl IcpResult {
-    /// True when the transform can be used (converged, or stopped while still improving slightly).
+    /// True when the transform is measured in every direction and can be used
+    /// at full weight: `Converged` only. (Before the degeneracy-aware ICP,
+    /// `MaxIterations` counted too; it no longer does.)
     pub fn is_usable(&self) -> bool {
-        matches!(self.status, IcpStatus::Converged | IcpStatus::MaxIterations)
+        self.status.is_converged()
+    }
+
+    /// True when the transform can be used through its information matrix:
+    /// converged, or converged with degenerate axes held (their information is zero).
+    pub fn is_informative(&self) -> bool {
+        self.status.is_converged_or_held() && self.information.is_some()
+    }
+}
+
+/// The transform as a user reads it: the shift of the moving DSM at `centre_m`
+/// and the rotation about that point, with one-sigma standard errors (None:
+/// degenerate, held at its start, or not estimated).
+#[derive(Clone, Debug, Serialize)]
+pub struct CentredPose {
+    /// World CRS metres, on the reference (p_ref).
+    pub centre_m: [f64; 3],
+    /// p_ref - p_moving at the centre: [dx, dy, dz] metres.
+    pub shift_m: [f64; 3],
+    /// [roll, pitch, yaw] degrees about the CRS x, y, z axes through the
+    /// centre (R = Rz(yaw) Ry(pitch) Rx(roll)).
+    pub rotation_deg: [f64; 3],
+    pub sigma: CentredSigma,
+}
+
+/// Standard errors of a [`CentredPose`].
+#[derive(Clone, Debug, Serialize)]
+pub struct CentredSigma {
+    pub shift_m: [Option<f64>; 3],
+    pub rotation_deg: [Option<f64>; 3],
+}
+
+impl IcpResult {
+    /// The transform about `centre_m` (see [`CentredPose`]): p_ref = R (p_moving
+    /// - c_m) + c_m + shift with c_m the moving point that lands on the centre.
+    pub fn centred(&self) -> CentredPose {
+        let c = nalgebra::Point3::from(nalgebra::Vector3::from(self.centre_m));
+        let from = self.t_ref_moving.inverse_transform_point(&c);
+        let shift = c - from;
+        let (roll, pitch, yaw) = self.t_ref_moving.rotation.euler_angles();
+        let sigma = self
+            .information
+            .as_ref()
+            .map(|i| i.sigma)
+            .unwrap_or([None; 6]);
+        CentredPose {
+            centre_m: self.centre_m,
+            shift_m: [shift.x, shift.y, shift.z],
+            rotation_deg: [roll.to_degrees(), pitch.to_degrees(), yaw.to_degrees()],
+            sigma: CentredSigma {
+                shift_m: [sigma[0], sigma[1], sigma[2]],
+                rotation_deg: [sigma[3], sigma[4], sigma[5]],
+            },
+        }
     }
 }
 

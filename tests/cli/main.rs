@@ -13,6 +13,7 @@ mod eco;
 mod faults;
 mod fuse_eval;
 mod fuzz;
+mod icpwire;
 mod ingest;
 mod pair_real;
 mod pair_recovery;

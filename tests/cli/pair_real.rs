@@ -57,14 +57,16 @@ fn srtm_shift_of_3_by_5_pixels_is_found() {
 
 #[test]
 fn srtm_shift_beyond_the_default_cap_is_flagged_not_returned() {
-    // Defaults (tau 10 m, --max-displacement 100 m) cannot reach a 500 m offset:
-    // the run must say so (exit 1), not print a transform as if it were good.
+    // A radius of 100 m (the default before the global search) cannot reach
+    // a 500 m offset: the run must say so (exit 1), not print a transform as
+    // if it were good. (At default flags the pair is found: icpwire.rs.)
     let dir = tempfile::tempdir().unwrap();
     let store = ingest_srtm_utm(dir.path());
     let out = bin()
         .arg("pair")
         .arg(&store)
         .args(["srtm_ref_utm", "srtm_bs_utm", "--model", "translation"])
+        .args(["--max-displacement", "100"])
         .output()
         .unwrap();
     assert_eq!(out.status.code(), Some(1), "{}", text(&out.stdout));

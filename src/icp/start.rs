@@ -1,0 +1,138 @@
+//! Where ICP starts: the global initial search ([`crate::coarse`]) over
+//! ±the search radius, so offsets of hundreds of metres horizontally and
+//! vertically need no flag. One start when the search is clear, the best few
+//! when it is ambiguous (each is refined by ICP; the pair keeps the best).
+
+use nalgebra::Vector3;
+
+use super::{IcpConfig, IcpError};
+use crate::coarse::{estimate, CoarseConfig, CoarseError};
+use crate::geo::Bounds;
+use crate::grid::{Grid, Pyramid};
+
+/// Coarse ambiguity above which ICP is run from several candidates.
+pub const MULTI_START_AMBIGUITY: f64 = 0.8;
+/// Candidates refined by ICP when the search is ambiguous.
+pub const MAX_STARTS: usize = 3;
+
+/// One starting translation (p_ref = p_moving + shift_m) and the search's
+/// residual spread there.
+#[derive(Clone, Copy, Debug)]
+pub struct Start {
+    pub shift_m: Vector3<f64>,
+    pub cost_m: f64,
+}
+
+/// The outcome of the initial search.
+#[derive(Clone, Debug)]
+pub struct Starts {
+    /// Best first; at least one.
+    pub starts: Vec<Start>,
+    /// The search's ambiguity (best cost / second cost); None without a search.
+    pub ambiguity: Option<f64>,
+    /// The search radius used, metres: also the largest motion ICP may make from a start.
+    pub radius_m: f64,
+    /// Full-resolution pixel (the coarser of the two DSMs), metres.
+    pub pixel_m: f64,
+}
+
+/// Searches for the moving DSM within the radius (see the module doc). A
+/// search that finds no shift with enough overlap falls back to the identity.
+pub fn find_starts<R: Pyramid, M: Pyramid>(
+    reference: &R,
+    moving: &M,
+    config: &IcpConfig,
+) -> Result<Starts, IcpError> {
+    let g = reference
+        .open_level(0)
+        .map_err(IcpError::Read)?
+        .geotransform();
+    let h = moving.open_level(0).map_err(IcpError::Read)?.geotransform();
+    let pixel_m = g.gsd_x().max(h.gsd_x()).max(g.gsd_y()).max(h.gsd_y());
+    let radius_m = config.search_radius_m(pixel_m);
+    let coarse = CoarseConfig {
+        max_displacement_m: radius_m,
+        ..CoarseConfig::default()
+    };
+    let found = match estimate(reference, moving, &coarse) {
+        Ok(found) => found,
+        Err(CoarseError::NoOverlap(_)) => return Err(IcpError::NoOverlap),
+        Err(CoarseError::EmptyOverlap) => return Err(IcpError::EmptyOverlap),
+        Err(CoarseError::Read(e)) => return Err(IcpError::Read(e)),
+        Err(CoarseError::NoMatch(_)) => {
+            return Ok(Starts {
+                starts: vec![Start {
+                    shift_m: Vector3::zeros(),
+                    cost_m: f64::NAN,
+                }],
+                ambiguity: None,
+                radius_m,
+                pixel_m,
+            })
+        }
+    };
+    let take = if found.ambiguity > MULTI_START_AMBIGUITY {
+        MAX_STARTS
+    } else {
+        1
+    };
+    let starts = found
+        .candidates
+        .iter()
+        .take(take)
+        .map(|c| Start {
+            shift_m: Vector3::from(c.shift_m),
+            cost_m: c.cost_m,
+        })
+        .collect();
+    tracing::debug!(shift = ?found.shift_m, ambiguity = found.ambiguity, level = found.level, "initial search");
+    Ok(Starts {
+        starts,
+        ambiguity: Some(found.ambiguity),
+        radius_m,
+        pixel_m,
+    })
+}
+
+/// The part of the moving DSM that lands on the reference when moved by
+/// `shift_m` (moving CRS coordinates); None when nothing does.
+pub fn moved_overlap<R: Pyramid, M: Pyramid>(
+    reference: &R,
+    moving: &M,
+    shift_m: &Vector3<f64>,
+) -> Result<Option<Bounds>, IcpError> {
+    let extent = |g: &dyn Grid| g.geotransform().extent(g.width() as u64, g.height() as u64);
+    let ref0 = extent(&reference.open_level(0).map_err(IcpError::Read)?);
+    let mov0 = extent(&moving.open_level(0).map_err(IcpError::Read)?);
+    let back = Bounds::from_corners(
+        (ref0.min_x - shift_m.x, ref0.min_y - shift_m.y),
+        (ref0.max_x - shift_m.x, ref0.max_y - shift_m.y),
+    );
+    Ok(mov0.intersection(&back))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geo::GeoTransform;
+    use crate::grid::{MemGrid, MemPyramid};
+
+    #[test]
+    fn the_moved_overlap_follows_the_shift() {
+        let tile = |left: f64| {
+            let gt = GeoTransform::north_up(left, 100.0, 1.0, 1.0);
+            MemPyramid::build(MemGrid::from_fn(100, 100, gt, |_, _| 1.0), 64)
+        };
+        let (r, m) = (tile(0.0), tile(50.0));
+        let none = moved_overlap(&r, &m, &Vector3::zeros()).unwrap().unwrap();
+        assert_eq!((none.min_x, none.max_x), (50.0, 100.0));
+        // moved 30 m east, the moving tile lands 30 m further from the reference
+        let moved = moved_overlap(&r, &m, &Vector3::new(30.0, 0.0, 7.0))
+            .unwrap()
+            .unwrap();
+        assert_eq!((moved.min_x, moved.max_x), (50.0, 70.0));
+        assert!(moved_overlap(&r, &m, &Vector3::new(60.0, 0.0, 0.0))
+            .unwrap()
+            .is_none());
+    }
+}
