@@ -6,6 +6,7 @@
 use nalgebra::Vector3;
 
 use super::{IcpConfig, IcpError};
+use crate::coarse::cost::{sample_box, score_shift};
 use crate::coarse::{estimate, CoarseConfig, CoarseError};
 use crate::geo::Bounds;
 use crate::grid::{Grid, Pyramid};
@@ -49,6 +50,12 @@ pub fn find_starts<R: Pyramid, M: Pyramid>(
         .geotransform();
     let h = moving.open_level(0).map_err(IcpError::Read)?.geotransform();
     let pixel_m = g.gsd_x().max(h.gsd_x()).max(g.gsd_y()).max(h.gsd_y());
+    // Two DSMs are a pair where their footprints and data meet as georeferenced;
+    // the search then looks for the best fit around that.
+    let nominal = moved_overlap(reference, moving, &Vector3::zeros())?.ok_or(IcpError::NoOverlap)?;
+    if !has_common_data(reference, moving, &nominal)? {
+        return Err(IcpError::EmptyOverlap);
+    }
     let radius_m = config.search_radius_m(pixel_m);
     let coarse = CoarseConfig {
         max_displacement_m: radius_m,
@@ -92,6 +99,38 @@ pub fn find_starts<R: Pyramid, M: Pyramid>(
         radius_m,
         pixel_m,
     })
+}
+
+/// Whether valid moving pixels of `overlap` land on valid reference pixels as
+/// georeferenced, judged on the coarsest level where the overlap still spans
+/// 16 pixels a side.
+fn has_common_data<R: Pyramid, M: Pyramid>(
+    reference: &R,
+    moving: &M,
+    overlap: &Bounds,
+) -> Result<bool, IcpError> {
+    let levels = reference.num_levels().min(moving.num_levels()).max(1);
+    let side_m = overlap.width().min(overlap.height());
+    let mut level = 0;
+    for l in (0..levels).rev() {
+        let gt = moving.open_level(l).map_err(IcpError::Read)?.geotransform();
+        if side_m / gt.gsd_x().max(gt.gsd_y()) >= 16.0 {
+            level = l;
+            break;
+        }
+    }
+    let mut mov = moving.open_level(level).map_err(IcpError::Read)?;
+    let box_m = [overlap.min_x, overlap.min_y, overlap.max_x, overlap.max_y];
+    let samples = sample_box(&mut mov, &box_m, 1024);
+    if let Some(e) = mov.take_error() {
+        return Err(IcpError::Read(e));
+    }
+    let mut refg = reference.open_level(level).map_err(IcpError::Read)?;
+    let score = score_shift(&mut refg, &samples, [0.0, 0.0], 0, &mut Vec::new());
+    if let Some(e) = refg.take_error() {
+        return Err(IcpError::Read(e));
+    }
+    Ok(score.support >= 3)
 }
 
 /// The part of the moving DSM that lands on the reference when moved by
