@@ -11,6 +11,7 @@
 //! points: lidar max/mean, IDW, TIN, smoothed) → `output` (COGs and truth.json); `cut` (a real
 //! GeoTIFF through the same frames into COGs and truth.json).
 
+pub mod calibration;
 pub mod cut;
 pub mod objects;
 pub mod output;

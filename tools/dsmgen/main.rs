@@ -5,8 +5,11 @@
 //! - `dsmgen big`: one large unperturbed DSM written tile by tile (ingest benchmark)
 //! - `dsmgen truth-grid`: the noise-free true surface over a tile set or bbox
 //! - `dsmgen cut`: overlapping perturbed tiles cut from a real DSM + truth.json
+//! - `dsmgen score`: poses.json and its journal against truth.json (errors, sigma calibration)
 //!
 //! Same seed, same bytes. Exit codes: 0 ok, 1 failure, 2 bad parameters.
+
+mod score;
 
 use std::path::PathBuf;
 
@@ -41,6 +44,8 @@ enum Command {
     TruthGrid(TruthGridArgs),
     /// Overlapping tiles cut from a real DSM, each moved by a known rigid motion, and truth.json.
     Cut(CutArgs),
+    /// A poses.json (and its journal) against truth.json: per-DSM, pairwise and per-pair errors, sigma calibration.
+    Score(score::ScoreArgs),
 }
 
 /// How pixels are made from the world (see `dsmstream::synth::render`).
@@ -297,6 +302,13 @@ fn main() {
         Command::Big(a) => big(a),
         Command::TruthGrid(a) => truth_grid(a),
         Command::Cut(a) => cut(a),
+        Command::Score(a) => {
+            if let Err(message) = score::run(a) {
+                eprintln!("error: {message}");
+                std::process::exit(2);
+            }
+            Ok(())
+        }
     };
     if let Err(err) = result {
         eprintln!("error: {err}");

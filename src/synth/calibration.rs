@@ -1,0 +1,201 @@
+//! How far each journaled pair is from the truth, axis by axis, and whether the
+//! standard errors the pair reported cover it: the calibration of the sigmas
+//! (issue 11: |error| / sigma <= 3 for 99 % of pairs on every axis).
+//!
+//! The error of a pair (reference i, moving j) is the left perturbation D with
+//! M_est = D M_true, M_true = T_i^-1 T_j from truth.json, written like the
+//! pair's information: the translation D(c) - c at the fit's centroid c and
+//! the rotation vector of D (roll, pitch, yaw about the CRS axes). Axes the
+//! fit held (zero variance) have no sigma and are counted apart.
+
+use nalgebra::{Matrix4, Point3, Rotation3};
+use serde::Serialize;
+
+use super::output::Truth;
+use crate::geo::rigid::from_rows;
+use crate::icp::IcpStatus;
+use crate::journal::EdgeRecord;
+
+/// Axis names in the information's order.
+pub const AXES: [&str; 6] = ["x", "y", "z", "roll", "pitch", "yaw"];
+
+/// One journaled pair against the truth.
+#[derive(Clone, Debug, Serialize)]
+pub struct EdgeError {
+    pub reference: String,
+    pub moving: String,
+    pub status: Option<IcpStatus>,
+    /// Error per axis: metres for x, y, z at the centroid, degrees for roll, pitch, yaw.
+    pub error: [f64; 6],
+    /// Reported one-sigma per axis (same units); None where the fit held the axis
+    /// or reported no covariance.
+    pub sigma: [Option<f64>; 6],
+}
+
+impl EdgeError {
+    /// |error| / sigma per axis (None where there is no sigma).
+    pub fn ratios(&self) -> [Option<f64>; 6] {
+        std::array::from_fn(|k| self.sigma[k].map(|s| self.error[k].abs() / s.max(1e-12)))
+    }
+
+    /// Displacement at the centroid, metres.
+    pub fn shift_error_m(&self) -> f64 {
+        self.error[..3].iter().map(|e| e * e).sum::<f64>().sqrt()
+    }
+}
+
+/// Variance below which an axis counts as held (nothing measured).
+const HELD_VARIANCE: f64 = 1e-18;
+
+impl Truth {
+    /// The error of one journaled pair; None when the record has no transform or
+    /// names a tile the truth does not have.
+    pub fn edge_error(&self, record: &EdgeRecord) -> Option<EdgeError> {
+        let rows = record.m_world.as_ref()?;
+        let tile = |id: &str| self.tiles.iter().find(|t| t.id == id);
+        let (ti, tj) = (tile(&record.reference)?, tile(&record.moving)?);
+        let m_true: Matrix4<f64> =
+            from_rows::<Matrix4<f64>>(&ti.matrix_world).try_inverse()? * from_rows::<Matrix4<f64>>(&tj.matrix_world);
+        let d: Matrix4<f64> = from_rows::<Matrix4<f64>>(rows) * m_true.try_inverse()?;
+        let centroid = match &record.information {
+            Some(info) => Point3::from(info.centroid_world),
+            None => self.centre_of(&record.moving),
+        };
+        let moved = d.transform_point(&centroid);
+        let rotation = Rotation3::from_matrix(&d.fixed_view::<3, 3>(0, 0).into_owned());
+        let rv = rotation.scaled_axis();
+        let error = [
+            moved.x - centroid.x,
+            moved.y - centroid.y,
+            moved.z - centroid.z,
+            rv.x.to_degrees(),
+            rv.y.to_degrees(),
+            rv.z.to_degrees(),
+        ];
+        let sigma = std::array::from_fn(|k| {
+            let v = record.information.as_ref()?.covariance[k][k];
+            let s = if v > HELD_VARIANCE { v.sqrt() } else { return None };
+            Some(if k < 3 { s } else { s.to_degrees() })
+        });
+        Some(EdgeError {
+            reference: record.reference.clone(),
+            moving: record.moving.clone(),
+            status: record.status,
+            error,
+            sigma,
+        })
+    }
+
+    /// A tile's centre at the pivot height (world metres), or the origin.
+    fn centre_of(&self, id: &str) -> Point3<f64> {
+        self.tiles
+            .iter()
+            .find(|t| t.id == id)
+            .map(|t| {
+                let g = t.geotransform;
+                Point3::new(
+                    g[0] + g[1] * t.width as f64 / 2.0,
+                    g[3] + g[5] * t.height as f64 / 2.0,
+                    self.pivot_z_m.unwrap_or(200.0),
+                )
+            })
+            .unwrap_or_else(Point3::origin)
+    }
+}
+
+/// Per axis: how many edges had a sigma, and the fractions within 1, 2, 3 sigma.
+#[derive(Clone, Debug, Serialize)]
+pub struct AxisCalibration {
+    pub axis: &'static str,
+    pub with_sigma: usize,
+    pub held: usize,
+    pub within: [f64; 3],
+    pub worst_ratio: f64,
+}
+
+/// The calibration table over `edges`.
+pub fn calibration(edges: &[EdgeError]) -> Vec<AxisCalibration> {
+    (0..6)
+        .map(|k| {
+            let ratios: Vec<f64> = edges.iter().filter_map(|e| e.ratios()[k]).collect();
+            let n = ratios.len();
+            let frac = |m: f64| ratios.iter().filter(|&&r| r <= m).count() as f64 / n.max(1) as f64;
+            AxisCalibration {
+                axis: AXES[k],
+                with_sigma: n,
+                held: edges.len() - n,
+                within: [frac(1.0), frac(2.0), frac(3.0)],
+                worst_ratio: ratios.iter().cloned().fold(0.0, f64::max),
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pipeline::PairInformation;
+    use crate::synth::output::TruthTile;
+
+    fn tile(id: &str, m: Matrix4<f64>) -> TruthTile {
+        TruthTile {
+            id: id.into(),
+            file: format!("{id}.tif"),
+            width: 100,
+            height: 100,
+            geotransform: [1000.0, 1.0, 0.0, 2000.0, 0.0, -1.0],
+            matrix_world: rows(&m),
+            shift_m: [0.0; 3],
+            rot_deg: [0.0; 3],
+        }
+    }
+
+    fn rows(m: &Matrix4<f64>) -> [[f64; 4]; 4] {
+        std::array::from_fn(|r| std::array::from_fn(|c| m[(r, c)]))
+    }
+
+    #[test]
+    fn the_error_is_the_perturbation_at_the_centroid_and_sigmas_divide_it() {
+        let t_j = Matrix4::new_translation(&nalgebra::Vector3::new(1.0, 2.0, 3.0));
+        let mut truth: Truth = serde_json::from_str(
+            r#"{"crs": "EPSG:32617", "gsd": 1.0, "layout": "chain", "seed": 1, "tiles": []}"#,
+        )
+        .unwrap();
+        truth.tiles = vec![tile("a", Matrix4::identity()), tile("b", t_j)];
+        // estimate off by 0.3 m in x and 0.01 rad of yaw about the centroid
+        let c = nalgebra::Vector3::new(1050.0, 1950.0, 200.0);
+        let yaw = Rotation3::from_euler_angles(0.0, 0.0, 0.01).to_homogeneous();
+        let about_c = Matrix4::new_translation(&c) * yaw * Matrix4::new_translation(&-c);
+        let d = Matrix4::new_translation(&nalgebra::Vector3::new(0.3, 0.0, 0.0)) * about_c;
+        let mut covariance = [[0.0; 6]; 6];
+        for (k, v) in [0.01, 0.01, 0.0, 1e-6, 1e-6, 1e-4].into_iter().enumerate() {
+            covariance[k][k] = v;
+        }
+        let record = EdgeRecord {
+            reference: "a".into(),
+            moving: "b".into(),
+            overlap: 0.5,
+            status: Some(IcpStatus::Converged),
+            m_world: Some(rows(&(d * t_j))),
+            rmse_m: 0.1,
+            inliers: 10,
+            iterations: 3,
+            sigma: None,
+            information: Some(PairInformation {
+                covariance,
+                centroid_world: [c.x, c.y, c.z],
+                degenerate: vec![],
+            }),
+            note: None,
+        };
+        let e = truth.edge_error(&record).unwrap();
+        assert!((e.error[0] - 0.3).abs() < 1e-9 && e.error[1].abs() < 1e-9, "{e:?}");
+        assert!((e.error[5] - 0.01f64.to_degrees()).abs() < 1e-9, "{e:?}");
+        assert_eq!(e.sigma[2], None, "zero variance is a held axis");
+        let r = e.ratios();
+        assert!((r[0].unwrap() - 3.0).abs() < 1e-9 && (r[5].unwrap() - 1.0).abs() < 1e-6);
+        let table = calibration(&[e]);
+        assert_eq!((table[2].with_sigma, table[2].held), (0, 1));
+        assert_eq!(table[0].within, [0.0, 0.0, 1.0]);
+    }
+}

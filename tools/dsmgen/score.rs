@@ -1,0 +1,131 @@
+//! `dsmgen score`: a poses.json (and its journal) against the truth.json of the
+//! collection: per-DSM and pairwise errors up to the gauge, each journaled
+//! pair's error per axis, and the calibration of the pairs' sigmas
+//! (fraction within 1, 2, 3 sigma per axis).
+
+use std::io::BufRead;
+use std::path::PathBuf;
+
+use clap::Args;
+use dsmstream::journal::EdgeRecord;
+use dsmstream::poses::PosesFile;
+use dsmstream::synth::calibration::{calibration, EdgeError};
+use dsmstream::synth::Truth;
+
+#[derive(Args)]
+pub struct ScoreArgs {
+    /// truth.json of the collection (dsmgen tiles / cut).
+    #[arg(long)]
+    truth: PathBuf,
+    /// poses.json written by `dsmstream align`.
+    #[arg(long)]
+    poses: PathBuf,
+    /// The align journal (default: <poses>.journal when it exists).
+    #[arg(long)]
+    journal: Option<PathBuf>,
+    /// One JSON document on stdout instead of the table.
+    #[arg(long)]
+    json: bool,
+    /// List the N pairs with the largest |error| / sigma.
+    #[arg(long, default_value_t = 5)]
+    worst: usize,
+}
+
+pub fn run(a: ScoreArgs) -> Result<(), String> {
+    let truth = Truth::load(&a.truth).map_err(|e| format!("{}: {e}", a.truth.display()))?;
+    let poses = PosesFile::read(&a.poses).map_err(|e| format!("{}: {e}", a.poses.display()))?;
+    let journal = a.journal.clone().unwrap_or_else(|| {
+        let mut p = a.poses.clone().into_os_string();
+        p.push(".journal");
+        PathBuf::from(p)
+    });
+    let edges = if journal.exists() {
+        read_edges(&truth, &journal)?
+    } else {
+        Vec::new()
+    };
+    let per_dsm = truth.per_dsm_error(&poses);
+    let pairwise = truth.pairwise_error(&poses);
+    let table = calibration(&edges);
+    let mut worst: Vec<(f64, &EdgeError)> = edges
+        .iter()
+        .filter_map(|e| {
+            let r = e.ratios().iter().flatten().cloned().fold(0.0, f64::max);
+            (r > 0.0).then_some((r, e))
+        })
+        .collect();
+    worst.sort_by(|a, b| b.0.total_cmp(&a.0));
+    worst.truncate(a.worst);
+    let mut dsm_m: Vec<f64> = per_dsm.iter().flat_map(|p| p.tiles.iter().map(|t| t.1)).collect();
+    dsm_m.sort_by(f64::total_cmp);
+    let median_m = dsm_m.get(dsm_m.len() / 2).copied().unwrap_or(f64::NAN);
+    let worst_edge_m = edges.iter().map(|e| e.shift_error_m()).fold(0.0, f64::max);
+    if a.json {
+        let doc = serde_json::json!({
+            "per_dsm": {
+                "count": dsm_m.len(),
+                "median_m": median_m,
+                "worst_m": per_dsm.as_ref().map(|p| p.worst_m),
+                "worst_deg": per_dsm.as_ref().map(|p| p.worst_deg),
+            },
+            "pairwise": {
+                "mean_m": pairwise.mean_m,
+                "worst_m": pairwise.worst_m,
+                "worst_deg": pairwise.worst_deg,
+            },
+            "edges": {"count": edges.len(), "worst_shift_m": worst_edge_m},
+            "calibration": table,
+            "worst_ratio_edges": worst.iter().map(|(_, e)| e).collect::<Vec<_>>(),
+        });
+        println!("{doc:#}");
+        return Ok(());
+    }
+    if let Some(p) = &per_dsm {
+        println!(
+            "per DSM ({} posed): median {median_m:.4} m, worst {:.4} m / {:.4} deg",
+            dsm_m.len(),
+            p.worst_m,
+            p.worst_deg
+        );
+    }
+    println!(
+        "pairwise (all pairs of DSMs): mean {:.4} m, worst {:.4} m / {:.4} deg",
+        pairwise.mean_m, pairwise.worst_m, pairwise.worst_deg
+    );
+    if edges.is_empty() {
+        return Ok(());
+    }
+    println!(
+        "journaled pairs: {}, worst shift error {worst_edge_m:.4} m",
+        edges.len()
+    );
+    println!("| axis | with sigma | held | <= 1 sigma | <= 2 sigma | <= 3 sigma | worst |e|/sigma |");
+    println!("|---|---|---|---|---|---|---|");
+    for c in &table {
+        println!(
+            "| {} | {} | {} | {:.3} | {:.3} | {:.3} | {:.2} |",
+            c.axis, c.with_sigma, c.held, c.within[0], c.within[1], c.within[2], c.worst_ratio
+        );
+    }
+    for (r, e) in worst {
+        println!(
+            "  {} -> {} ({:?}): worst ratio {r:.1}; error {:.3?} (m, deg), sigma {:.3?}",
+            e.reference, e.moving, e.status, e.error, e.sigma
+        );
+    }
+    Ok(())
+}
+
+/// The journaled pairs with a transform, scored against the truth.
+fn read_edges(truth: &Truth, path: &PathBuf) -> Result<Vec<EdgeError>, String> {
+    let name = path.display();
+    let file = std::fs::File::open(path).map_err(|e| format!("{name}: {e}"))?;
+    let mut edges = Vec::new();
+    for (k, line) in std::io::BufReader::new(file).lines().enumerate().skip(1) {
+        let line = line.map_err(|e| format!("{name}: {e}"))?;
+        let record: EdgeRecord =
+            serde_json::from_str(&line).map_err(|e| format!("{name}, line {}: {e}", k + 1))?;
+        edges.extend(truth.edge_error(&record));
+    }
+    Ok(edges)
+}
