@@ -23,7 +23,7 @@ pub struct FailedPair {
 }
 
 /// How many edges the graph had and what the solve did with them.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct EdgeCounts {
     /// Registered pairs: the edges of the full graph.
     pub edges: usize,
@@ -33,6 +33,11 @@ pub struct EdgeCounts {
     pub dropped: usize,
     /// Kept at a lower weight by the robust averaging.
     pub downweighted: usize,
+    /// Edges whose pair did not converge or is ambiguous: in the information
+    /// averaging at 1 % of their weight, never counted as constraining.
+    pub unreliable: usize,
+    /// A-posteriori variance of unit weight (information averaging).
+    pub variance_factor: Option<f64>,
 }
 
 /// Everything the report is built from.
@@ -155,6 +160,11 @@ pub fn edge_counts(scene: &SceneGraph, solution: &PoseSolution) -> EdgeCounts {
         tree_edges: solution.tree.as_ref().map(Vec::len),
         dropped: solution.dropped.len(),
         downweighted: solution.downweighted.len(),
+        unreliable: scene
+            .information
+            .as_ref()
+            .map_or(0, |info| info.iter().filter(|e| !e.reliable).count()),
+        variance_factor: solution.summary.as_ref().and_then(|s| s.variance_factor),
     }
 }
 

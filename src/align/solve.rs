@@ -99,6 +99,7 @@ fn solve_informed(
     }
     let summary = PosesSummary {
         weights: Some(scene.weights.used),
+        variance_factor: informed.variance_factor,
         ..PosesSummary::from_result(&result)
     };
     Ok(PoseSolution {

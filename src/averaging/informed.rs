@@ -12,7 +12,9 @@
 //!    d = sqrt(r^T Omega r) (every edge readmitted), then rounds that drop edges
 //!    whose d exceeds max(`outlier_sigma`, k x median) (all at once; bridges
 //!    down-weighted instead of dropped), the rest at full weight;
-//! 4. per-node standard errors ([`super::covariance`]) and status.
+//! 4. per-node standard errors ([`super::covariance`]) times the a-posteriori
+//!    standard deviation of unit weight when it exceeds one (the edges disagree
+//!    more than their own sigmas say: [`variance_factor`]), and status.
 //!
 //! Frames: both blocks are about the axes of DSM i's frame (the pair's reference),
 //! the translation at the edge's centre (`Edge::centre_j`); DSM rotations are tiny,
@@ -152,6 +154,10 @@ pub struct InformedResult {
     pub mahalanobis: Vec<(f64, f64)>,
     /// Conjugate-gradient iterations of the refinement solves.
     pub refine_iterations: usize,
+    /// A-posteriori variance of unit weight of the kept edges (1: they agree as
+    /// their sigmas say; None without redundancy). Node sigmas are scaled by its
+    /// square root when it exceeds one.
+    pub variance_factor: Option<f64>,
 }
 
 /// Averages `graph` with one [`EdgeInformation`] per edge.
@@ -246,13 +252,19 @@ pub fn average_informed(
     }
     let rotations: Vec<Matrix3<f64>> = poses.iter().map(rotation).collect();
     let weighted: Vec<Matrix6<f64>> = omegas.iter().zip(&active).map(|(o, &a)| o * a).collect();
-    let sigma = node_sigmas(
+    let mut sigma = node_sigmas(
         graph,
         &weighted,
         &rotations,
         &components,
         options.covariance,
     );
+    let factor = variance_factor(graph, &mahalanobis, &active, &components);
+    let scale = factor.unwrap_or(1.0).max(1.0).sqrt();
+    for s in &mut sigma {
+        s.shift_m.iter_mut().for_each(|v| *v *= scale);
+        s.rotation_deg.iter_mut().for_each(|v| *v *= scale);
+    }
     let status = node_status(graph, information, &active, &sigma, options);
     result.edge_residuals = super::edge_residuals(graph, &poses);
     result.poses = poses;
@@ -263,7 +275,38 @@ pub fn average_informed(
         status,
         mahalanobis,
         refine_iterations: iterations,
+        variance_factor: factor,
     })
+}
+
+/// The a-posteriori variance of unit weight of the edges kept at full weight:
+/// the sum of their squared Mahalanobis residuals (rotation and translation)
+/// over the redundancy 6 (E - N + C) of the graph they form (each edge measures
+/// six numbers, each node has six unknowns, one gauge per component). None when
+/// the kept edges form a forest (nothing to compare).
+pub fn variance_factor(
+    graph: &PoseGraph,
+    mahalanobis: &[(f64, f64)],
+    active: &[f64],
+    components: &[Vec<usize>],
+) -> Option<f64> {
+    let kept: Vec<usize> = (0..graph.edges.len())
+        .filter(|&k| active[k] >= 0.999)
+        .collect();
+    let nodes: usize = components
+        .iter()
+        .filter(|c| c.len() > 1)
+        .map(|c| c.len())
+        .sum();
+    let linked = components.iter().filter(|c| c.len() > 1).count();
+    let redundancy = (kept.len() + linked)
+        .checked_sub(nodes)
+        .filter(|&r| r > 0)?;
+    let sum: f64 = kept
+        .iter()
+        .map(|&k| mahalanobis[k].0.powi(2) + mahalanobis[k].1.powi(2))
+        .sum();
+    Some(sum / (6 * redundancy) as f64)
 }
 
 /// Each edge's information as one 6x6 block-diagonal (rotation top-left), times the

@@ -208,8 +208,14 @@ fn print_summary(
         ),
         None => (
             format!(
-                "{} edges ({} dropped, {} down-weighted)",
-                c.edges, c.dropped, c.downweighted
+                "{} edges ({} dropped, {} down-weighted{})",
+                c.edges,
+                c.dropped,
+                c.downweighted,
+                match c.unreliable {
+                    0 => String::new(),
+                    n => format!(", {n} not converged or ambiguous at 1 % weight"),
+                }
             ),
             format!("full, weights {}", outcome.weights.used.label()),
             "after averaging",
@@ -224,6 +230,17 @@ fn print_summary(
     emit_line(&format!(
         "mean pairwise ICP rmse {mean_rmse:.3} m; largest edge residual {solved} {max_res:.3} m"
     ))?;
+    if let Some(f) = c.variance_factor.filter(|_| c.tree_edges.is_none()) {
+        emit_line(&if f > 1.0 {
+            format!(
+                "the pairs disagree {:.1}x more than their sigmas say (variance factor {f:.2}): pose sigmas scaled by {:.2}",
+                f.sqrt(),
+                f.sqrt()
+            )
+        } else {
+            format!("the pairs agree within their sigmas (variance factor {f:.2})")
+        })?;
+    }
     if !outcome.unconstrained.is_empty() {
         emit_line(&format!(
             "{} DSMs unconstrained (no reliable edge; poses not learned from the data): {}",

@@ -224,7 +224,8 @@ fn global_scan<R: Pyramid, M: Pyramid>(
     }
     let mut scratch = Vec::new();
     let at_zero = cost::score_shift(&mut ref_win, &samples, [0.0, 0.0], 0, &mut scratch);
-    let min_support = 16.max(at_zero.support / 4).min(samples.len() / 2);
+    // a shift must keep half the overlap the georeferenced position has
+    let min_support = 16.max(at_zero.support / 2).min(samples.len() / 2);
     let trials = scan(&mut ref_win, &samples, step, radius_px, min_support);
     let peaks = minima(&trials, radius_px, 2, config.candidates.max(1));
     if peaks.is_empty() {

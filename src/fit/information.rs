@@ -22,7 +22,7 @@
 
 use super::{Correspondence, Model};
 use nalgebra::{DMatrix, Matrix6, SymmetricEigen, Vector3, Vector6};
-use std::collections::HashMap;
+use std::collections::BTreeMap;
 
 /// One of the six pose parameters, in the order of [`FitInformation::info_6x6`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
@@ -157,7 +157,7 @@ impl NormalEquations {
         let mut h = Matrix6::zeros();
         let mut g = Vector6::zeros();
         let mut meat = Matrix6::zeros();
-        let mut cells: HashMap<(i64, i64), Vector6<f64>> = HashMap::new();
+        let mut cells: BTreeMap<(i64, i64), Vector6<f64>> = BTreeMap::new();
         for c in corrs {
             let q = c.moving - centroid;
             let a_rot = q.cross(&c.normal) / radius_m;
@@ -195,7 +195,7 @@ const CELLS_PER_BANDWIDTH: i64 = 4;
 /// Spatial (Conley) sandwich meat: sum over cell pairs of K(c, d) S_c S_d^T with
 /// the product Bartlett kernel (1 - |dx| / L)(1 - |dy| / L), positive
 /// semi-definite, which reaches to the bandwidth L.
-fn bartlett_meat(cells: &HashMap<(i64, i64), Vector6<f64>>) -> Matrix6<f64> {
+fn bartlett_meat(cells: &BTreeMap<(i64, i64), Vector6<f64>>) -> Matrix6<f64> {
     let reach = CELLS_PER_BANDWIDTH;
     let kernel = |d: i64| 1.0 - d.abs() as f64 / reach as f64;
     let mut meat = Matrix6::zeros();

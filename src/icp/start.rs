@@ -5,7 +5,7 @@
 
 use nalgebra::Vector3;
 
-use super::{IcpConfig, IcpError};
+use super::{config, IcpConfig, IcpError};
 use crate::coarse::cost::{sample_box, score_shift};
 use crate::coarse::{estimate, CoarseConfig, CoarseError};
 use crate::geo::Bounds;
@@ -15,6 +15,8 @@ use crate::grid::{Grid, Pyramid};
 pub const MULTI_START_AMBIGUITY: f64 = 0.8;
 /// Candidates refined by ICP when the search is ambiguous.
 pub const MAX_STARTS: usize = 3;
+/// The automatic search radius is at least this many pixels.
+pub const MIN_AUTO_RADIUS_PX: f64 = 8.0;
 
 /// One starting translation (p_ref = p_moving + shift_m) and the search's
 /// residual spread there.
@@ -52,11 +54,18 @@ pub fn find_starts<R: Pyramid, M: Pyramid>(
     let pixel_m = g.gsd_x().max(h.gsd_x()).max(g.gsd_y()).max(h.gsd_y());
     // Two DSMs are a pair where their footprints and data meet as georeferenced;
     // the search then looks for the best fit around that.
-    let nominal = moved_overlap(reference, moving, &Vector3::zeros())?.ok_or(IcpError::NoOverlap)?;
+    let nominal =
+        moved_overlap(reference, moving, &Vector3::zeros())?.ok_or(IcpError::NoOverlap)?;
     if !has_common_data(reference, moving, &nominal)? {
         return Err(IcpError::EmptyOverlap);
     }
-    let radius_m = config.search_radius_m(pixel_m);
+    // The automatic radius stays within half the overlap: a search over a small
+    // overlap's whole width finds chance fits at its edges.
+    let mut radius_m = config.search_radius_m(pixel_m);
+    if !config.max_displacement_m.is_finite() {
+        let half_side = 0.5 * nominal.width().min(nominal.height());
+        radius_m = radius_m.min(half_side.max(MIN_AUTO_RADIUS_PX * pixel_m));
+    }
     let coarse = CoarseConfig {
         max_displacement_m: radius_m,
         ..CoarseConfig::default()
@@ -83,7 +92,7 @@ pub fn find_starts<R: Pyramid, M: Pyramid>(
     } else {
         1
     };
-    let starts = found
+    let mut starts: Vec<Start> = found
         .candidates
         .iter()
         .take(take)
@@ -92,6 +101,20 @@ pub fn find_starts<R: Pyramid, M: Pyramid>(
             cost_m: c.cost_m,
         })
         .collect();
+    // Georeferencing is usually right to a few metres: when the search moves the
+    // DSM far, ICP also starts from where it is (at the search's height offset)
+    // and the better final fit wins; two good fits apart make the pair ambiguous.
+    let best = starts[0];
+    if best.shift_m.xy().norm() > config::PAPER_TAU_M.max(3.0 * pixel_m)
+        && !starts
+            .iter()
+            .any(|s| s.shift_m.xy().norm() <= 3.0 * pixel_m)
+    {
+        starts.push(Start {
+            shift_m: Vector3::new(0.0, 0.0, best.shift_m.z),
+            cost_m: best.cost_m,
+        });
+    }
     tracing::debug!(shift = ?found.shift_m, ambiguity = found.ambiguity, level = found.level, "initial search");
     Ok(Starts {
         starts,

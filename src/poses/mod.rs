@@ -147,6 +147,11 @@ pub struct PosesSummary {
     /// The edge weights used (absent in older files).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub weights: Option<crate::graph::Weighting>,
+    /// A-posteriori variance of unit weight of the kept edges (information
+    /// averaging with redundancy): above 1 the pairs disagree more than their
+    /// sigmas say, and the poses' sigmas were scaled by its square root.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub variance_factor: Option<f64>,
 }
 
 impl PosesSummary {
@@ -176,6 +181,7 @@ impl PosesSummary {
             rotation_iterations: result.rotation_iterations,
             cg_iterations: result.cg_iterations,
             weights: None,
+            variance_factor: None,
         }
     }
 }

@@ -54,8 +54,8 @@ impl Truth {
         let rows = record.m_world.as_ref()?;
         let tile = |id: &str| self.tiles.iter().find(|t| t.id == id);
         let (ti, tj) = (tile(&record.reference)?, tile(&record.moving)?);
-        let m_true: Matrix4<f64> =
-            from_rows::<Matrix4<f64>>(&ti.matrix_world).try_inverse()? * from_rows::<Matrix4<f64>>(&tj.matrix_world);
+        let m_true: Matrix4<f64> = from_rows::<Matrix4<f64>>(&ti.matrix_world).try_inverse()?
+            * from_rows::<Matrix4<f64>>(&tj.matrix_world);
         let d: Matrix4<f64> = from_rows::<Matrix4<f64>>(rows) * m_true.try_inverse()?;
         let centroid = match &record.information {
             Some(info) => Point3::from(info.centroid_world),
@@ -74,7 +74,11 @@ impl Truth {
         ];
         let sigma = std::array::from_fn(|k| {
             let v = record.information.as_ref()?.covariance[k][k];
-            let s = if v > HELD_VARIANCE { v.sqrt() } else { return None };
+            let s = if v > HELD_VARIANCE {
+                v.sqrt()
+            } else {
+                return None;
+            };
             Some(if k < 3 { s } else { s.to_degrees() })
         });
         Some(EdgeError {
@@ -189,7 +193,10 @@ mod tests {
             note: None,
         };
         let e = truth.edge_error(&record).unwrap();
-        assert!((e.error[0] - 0.3).abs() < 1e-9 && e.error[1].abs() < 1e-9, "{e:?}");
+        assert!(
+            (e.error[0] - 0.3).abs() < 1e-9 && e.error[1].abs() < 1e-9,
+            "{e:?}"
+        );
         assert!((e.error[5] - 0.01f64.to_degrees()).abs() < 1e-9, "{e:?}");
         assert_eq!(e.sigma[2], None, "zero variance is a held axis");
         let r = e.ratios();

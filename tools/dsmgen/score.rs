@@ -56,10 +56,14 @@ pub fn run(a: ScoreArgs) -> Result<(), String> {
         .collect();
     worst.sort_by(|a, b| b.0.total_cmp(&a.0));
     worst.truncate(a.worst);
-    let mut dsm_m: Vec<f64> = per_dsm.iter().flat_map(|p| p.tiles.iter().map(|t| t.1)).collect();
+    let mut dsm_m: Vec<f64> = per_dsm
+        .iter()
+        .flat_map(|p| p.tiles.iter().map(|t| t.1))
+        .collect();
     dsm_m.sort_by(f64::total_cmp);
     let median_m = dsm_m.get(dsm_m.len() / 2).copied().unwrap_or(f64::NAN);
     let worst_edge_m = edges.iter().map(|e| e.shift_error_m()).fold(0.0, f64::max);
+    let dsm_cover = per_dsm.as_ref().map(|p| dsm_coverage(&poses, &p.tiles));
     if a.json {
         let doc = serde_json::json!({
             "per_dsm": {
@@ -73,6 +77,7 @@ pub fn run(a: ScoreArgs) -> Result<(), String> {
                 "worst_m": pairwise.worst_m,
                 "worst_deg": pairwise.worst_deg,
             },
+            "per_dsm_sigma": dsm_cover,
             "edges": {"count": edges.len(), "worst_shift_m": worst_edge_m},
             "calibration": table,
             "worst_ratio_edges": worst.iter().map(|(_, e)| e).collect::<Vec<_>>(),
@@ -88,6 +93,12 @@ pub fn run(a: ScoreArgs) -> Result<(), String> {
             p.worst_deg
         );
     }
+    if let Some(Some(c)) = &dsm_cover {
+        println!(
+            "per DSM sigmas ({} with sigma): error within 1/2/3 x |sigma|: {:.3} / {:.3} / {:.3} (shift), {:.3} / {:.3} / {:.3} (rotation)",
+            c.with_sigma, c.shift[0], c.shift[1], c.shift[2], c.rotation[0], c.rotation[1], c.rotation[2]
+        );
+    }
     println!(
         "pairwise (all pairs of DSMs): mean {:.4} m, worst {:.4} m / {:.4} deg",
         pairwise.mean_m, pairwise.worst_m, pairwise.worst_deg
@@ -99,7 +110,9 @@ pub fn run(a: ScoreArgs) -> Result<(), String> {
         "journaled pairs: {}, worst shift error {worst_edge_m:.4} m",
         edges.len()
     );
-    println!("| axis | with sigma | held | <= 1 sigma | <= 2 sigma | <= 3 sigma | worst |e|/sigma |");
+    println!(
+        "| axis | with sigma | held | <= 1 sigma | <= 2 sigma | <= 3 sigma | worst |e|/sigma |"
+    );
     println!("|---|---|---|---|---|---|---|");
     for c in &table {
         println!(
@@ -128,4 +141,41 @@ fn read_edges(truth: &Truth, path: &PathBuf) -> Result<Vec<EdgeError>, String> {
         edges.extend(truth.edge_error(&record));
     }
     Ok(edges)
+}
+
+/// Per DSM: the fraction whose error (after the gauge) is within 1, 2, 3 times
+/// the norm of its reported sigma (shift at the tile centre against the norm of
+/// the shift sigmas; angle against the norm of the rotation sigmas). None when
+/// poses.json has no sigma.
+#[derive(serde::Serialize)]
+struct DsmCoverage {
+    with_sigma: usize,
+    shift: [f64; 3],
+    rotation: [f64; 3],
+}
+
+fn dsm_coverage(poses: &PosesFile, tiles: &[(String, f64, f64)]) -> Option<DsmCoverage> {
+    let norm = |v: &[f64; 3]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+    let rows: Vec<(f64, f64)> = tiles
+        .iter()
+        .filter_map(|(id, m, deg)| {
+            let p = poses.poses.iter().find(|p| &p.id == id)?;
+            let s = p.sigma.as_ref()?;
+            Some((
+                m / norm(&s.shift_m).max(1e-12),
+                deg / norm(&s.rotation_deg).max(1e-12),
+            ))
+        })
+        .collect();
+    if rows.is_empty() {
+        return None;
+    }
+    let frac = |f: &dyn Fn(&(f64, f64)) -> f64, k: f64| {
+        rows.iter().filter(|r| f(r) <= k).count() as f64 / rows.len() as f64
+    };
+    Some(DsmCoverage {
+        with_sigma: rows.len(),
+        shift: [1.0, 2.0, 3.0].map(|k| frac(&|r| r.0, k)),
+        rotation: [1.0, 2.0, 3.0].map(|k| frac(&|r| r.1, k)),
+    })
 }
