@@ -118,11 +118,16 @@ pub fn open_journal(
     Ok((lock, journal, done))
 }
 
+/// The pairwise registration's behaviour: raised when a version registers the
+/// same pair differently, so that its journals are not mixed with older ones.
+/// 2: global initial search, degeneracy holding, `ambiguous`.
+pub const REGISTRATION_VERSION: u32 = 2;
+
 /// The settings a journal's header records: a journal is reused (or, sharded,
 /// merged) only by a run with the same ones.
 pub fn journal_settings(config: &AlignConfig) -> String {
     format!(
-        "{:?} min_overlap={}",
+        "{:?} min_overlap={} registration={REGISTRATION_VERSION}",
         config.pipeline.icp, config.pipeline.min_overlap
     )
 }
