@@ -421,7 +421,7 @@ fn store_grid_records_read_errors() {
     let mut grid = StoreGrid::new(&store, &cache, 0, 0).unwrap();
     assert!(!grid.get(0, 0).is_nan());
     assert!(grid.get(20, 20).is_nan());
-    let err = grid.take_error().unwrap();
+    let err = grid.take_error().unwrap().to_string();
     let file = store_path.join("a/0/c/1/1");
     assert!(err.starts_with(&format!("{}: ", file.display())), "{err}");
     assert!(grid.take_error().is_none());
