@@ -300,4 +300,10 @@ impl Store {
 }
 
 #[cfg(test)]
-mod tests;
+mod tests_chunks;
+#[cfg(test)]
+mod tests_ingest;
+#[cfg(test)]
+mod tests_round_trip;
+#[cfg(test)]
+mod tests_support;
