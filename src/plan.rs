@@ -158,8 +158,8 @@ fn covered<A: Grid + ?Sized, B: Grid + ?Sized>(a: &mut A, b: &mut B) -> (u64, u6
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geo::GeoTransform;
     use crate::grid::MemGrid;
-    use crate::raster::GeoTransform;
 
     fn fp(index: usize, x0: f64, y0: f64, size: f64) -> Footprint {
         Footprint {

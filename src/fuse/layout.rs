@@ -7,8 +7,8 @@ use rstar::{RTree, AABB};
 
 use super::corrected::PoseXf;
 use crate::geo::Bounds;
+use crate::geo::GeoTransform;
 use crate::plan::Footprint;
-use crate::raster::GeoTransform;
 use crate::store::{DsmMeta, Store};
 
 /// Relative tolerance when comparing cell sizes.

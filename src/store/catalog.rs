@@ -14,7 +14,7 @@ use serde_json::{json, Value};
 
 use super::chunks::ChunkRecord;
 use super::{validate, StoreError};
-use crate::raster::{Crs, GeoTransform};
+use crate::geo::{Crs, GeoTransform};
 
 /// Version of the attribute layout written by this code.
 pub const STORE_VERSION: u32 = 1;

@@ -114,7 +114,7 @@ fn check_dsm(
     root: &Path,
     fs: &Arc<FilesystemStore>,
     id: &str,
-    crs: Option<&crate::raster::Crs>,
+    crs: Option<&crate::geo::Crs>,
 ) -> DsmCheck {
     let mut problems = Problems::default();
     let mut chunks_read = 0;

@@ -6,7 +6,7 @@
 use rayon::prelude::*;
 
 use super::catalog::HeightStats;
-use crate::raster::GeoTransform;
+use crate::geo::GeoTransform;
 
 #[derive(Clone, Debug)]
 pub struct HeightAccumulator {

@@ -9,7 +9,7 @@ use std::collections::HashSet;
 
 use super::catalog::{DsmMeta, LevelMeta, RootAttrs};
 use super::LevelArray;
-use crate::raster::{Crs, GeoTransform};
+use crate::geo::{Crs, GeoTransform};
 
 /// Pixel sizes outside this range (CRS units, metres) are not a DSM.
 pub const GSD_RANGE_M: (f64, f64) = (1e-6, 1e6);

@@ -148,8 +148,8 @@ fn a_failed_pair_is_reported_and_align_goes_on() {
 
 #[test]
 fn pair_refuses_an_overlap_that_is_all_no_data() {
+    use dsmstream::geo::GeoTransform;
     use dsmstream::geotiff::writer::{write_geotiff_f32, CogOptions};
-    use dsmstream::raster::GeoTransform;
     let dir = tempfile::tempdir().unwrap();
     // a: 64 x 64 px of sloped ground; b: shifted 32 px east, its western
     // half (the part over a) no-data, so the footprints overlap but no pixel.

@@ -256,9 +256,9 @@ fn tukey(mut corrs: Vec<Correspondence>) -> Vec<Correspondence> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use dsmstream::geo::GeoTransform;
     use dsmstream::grid::MemGrid;
     use dsmstream::nn::{nearest, NnStats};
-    use dsmstream::raster::GeoTransform;
     use dsmstream::rng::SplitMix64;
 
     /// A rough DSM with walls and no-data holes.
