@@ -35,7 +35,7 @@ impl PlacedDsm {
         };
         PlacedDsm {
             index,
-            corrected_bounds: pose.map_bounds(meta.footprint, z_range),
+            corrected_bounds: pose.map_bounds(meta.footprint.to_array(), z_range),
             z_start_m: if s.mean.is_finite() { s.mean } else { 0.0 },
         }
     }
@@ -110,7 +110,7 @@ impl FootprintIndex {
                     .enumerate()
                     .map(|(slot, p)| Footprint {
                         index: slot,
-                        bounds: p.corrected_bounds,
+                        bounds: p.corrected_bounds.into(),
                     })
                     .collect(),
             ),

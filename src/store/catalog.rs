@@ -14,7 +14,7 @@ use serde_json::{json, Value};
 
 use super::chunks::ChunkRecord;
 use super::{validate, StoreError};
-use crate::geo::{Crs, GeoTransform};
+use crate::geo::{Bounds, Crs, GeoTransform};
 
 /// Version of the attribute layout written by this code.
 pub const STORE_VERSION: u32 = 1;
@@ -114,8 +114,9 @@ pub struct DsmMeta {
     pub nodata: Option<f64>,
     pub valid_count: u64,
     pub height_stats: HeightStats,
-    /// [min_x, min_y, max_x, max_y] of the valid pixels, in CRS units.
-    pub footprint: [f64; 4],
+    /// The box of the valid pixels, in CRS units (on disk the array
+    /// `[min_x, min_y, max_x, max_y]`).
+    pub footprint: Bounds,
     pub levels: Vec<LevelMeta>,
     pub source: SourceInfo,
     /// Sample type of the source file, GDAL names: "Float32", "Int16", ...
@@ -305,7 +306,7 @@ pub(crate) mod tests {
                 mean: 80.125,
                 std: 3.5,
             },
-            footprint: [630_010.0, 4_832_700.0, 630_500.0, 4_833_000.0],
+            footprint: Bounds::from([630_010.0, 4_832_700.0, 630_500.0, 4_833_000.0]),
             levels: vec![
                 LevelMeta {
                     width: 1000,
@@ -352,6 +353,19 @@ pub(crate) mod tests {
         m.nodata = None;
         write_group_attributes(dir.path(), &m.to_attributes()).unwrap();
         assert_eq!(read_dsm(dir.path()).unwrap(), m);
+    }
+
+    #[test]
+    fn footprint_is_written_as_the_array_it_always_was() {
+        let meta = sample_meta("a");
+        let text = serde_json::to_string(&meta.to_attributes()).unwrap();
+        let array: [f64; 4] = [630_010.0, 4_832_700.0, 630_500.0, 4_833_000.0];
+        let expected = format!("\"footprint\":{}", serde_json::to_string(&array).unwrap());
+        assert!(text.contains(&expected), "{text}");
+        assert!(text.contains("\"footprint\":[630010.0,4832700.0,630500.0,4833000.0]"));
+        let dir = tempfile::tempdir().unwrap();
+        write_group_attributes(dir.path(), &meta.to_attributes()).unwrap();
+        assert_eq!(read_dsm(dir.path()).unwrap().footprint, Bounds::from(array));
     }
 
     #[test]

@@ -299,8 +299,9 @@ fn compare_stats(file: &Path, meta: &DsmMeta, stats: &HeightAccumulator, problem
     let footprint = stats.footprint(&meta.geotransform, meta.width, meta.height);
     if footprint != meta.footprint {
         problems.add(format!(
-            "{file}: level 0 footprint {footprint:?} differs from the catalog's {:?}",
-            meta.footprint
+            "{file}: level 0 footprint {:?} differs from the catalog's {:?}",
+            footprint.to_array(),
+            meta.footprint.to_array()
         ));
     }
 }

@@ -135,7 +135,7 @@ fn store_catalog_attributes_and_array_metadata() {
     assert!(doc["codecs"].to_string().contains("zstd"));
     // footprint: the valid pixels' box, inside the raster bounds
     let bounds = meta.geotransform.bounds(40, 30);
-    assert!(meta.footprint[0] >= bounds[0] && meta.footprint[3] <= bounds[3]);
+    assert!(meta.footprint.min_x >= bounds[0] && meta.footprint.max_y <= bounds[3]);
 }
 
 /// Not a unit test: builds a store from raw float32 rasters, bypassing the
