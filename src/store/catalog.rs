@@ -58,7 +58,7 @@ pub enum Compression {
 /// zstd level of `--compression zstd` and of the default settings. Level 1:
 /// on float32 heights (noisy mantissa bytes) level 3 costs ~35 % more ingest
 /// CPU for 0.5 % smaller chunks on a 20000^2 generated DSM and 0-14 % on the
-/// real rasters of ../shared/data (tools/bench_results.md).
+/// real rasters of ../shared/data (tools/results/bench_results.md).
 pub const DEFAULT_ZSTD_LEVEL: i32 = 1;
 
 impl Compression {

@@ -255,7 +255,7 @@ fn full_graph_beats_the_spanning_tree_on_a_grid_of_sixteen() {
         summary.weights,
         Some(dsmstream::graph::Weighting::Information)
     );
-    // measured 2026-11-22 (tools/align_accuracy.sh): full (information) worst
+    // measured 2026-11-22 (tools/scripts/align_accuracy.sh): full (information) worst
     // 0.251 m / 0.069 deg, 1 edge dropped; mst 0.669 m / 0.226 deg; paper
     // 0.417 m / 0.167 deg, 12 dropped.
     assert!(
@@ -284,7 +284,7 @@ fn full_graph_beats_the_spanning_tree_on_a_chain_of_twelve() {
     );
     let runs = align_variants(dir.path(), &store, &[&["--graph", "mst"]]);
     let [full, mst] = [0, 1].map(|k| truth.pairwise_error(&runs[k].0));
-    // measured 2026-11-22 (tools/align_accuracy.sh): full worst 0.807 m /
+    // measured 2026-11-22 (tools/scripts/align_accuracy.sh): full worst 0.807 m /
     // 0.126 deg, nothing dropped; mst 1.420 m / 0.195 deg.
     assert!(
         full.worst_m < 0.8 * mst.worst_m && full.mean_m < mst.mean_m,
