@@ -134,8 +134,8 @@ fn store_catalog_attributes_and_array_metadata() {
     assert!(doc["attributes"].get("_zarrs").is_none());
     assert!(doc["codecs"].to_string().contains("zstd"));
     // footprint: the valid pixels' box, inside the raster bounds
-    let bounds = meta.geotransform.bounds(40, 30);
-    assert!(meta.footprint.min_x >= bounds[0] && meta.footprint.max_y <= bounds[3]);
+    let extent = meta.geotransform.extent(40, 30);
+    assert!(meta.footprint.min_x >= extent.min_x && meta.footprint.max_y <= extent.max_y);
 }
 
 /// Not a unit test: builds a store from raw float32 rasters, bypassing the
