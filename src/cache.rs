@@ -28,7 +28,7 @@ pub use data::{ChunkData, MapPool, MAP_MIN_BYTES};
 /// (same run time). With it fixed, every large buffer is its own mapping,
 /// returned to the system when freed, so the resident size follows the cache
 /// budget (the price: page faults on every large buffer, see
-/// tools/bench_cache_results.md).
+/// tools/results/bench_cache_results.md).
 pub fn release_large_buffers_on_free() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     {

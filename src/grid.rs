@@ -4,8 +4,39 @@
 //! through [`Grid`]; the store provides an implementation that goes through the
 //! shared chunk cache, and [`MemGrid`] holds a small raster in memory for tests
 //! and tools. No-data is NaN, and so is any pixel outside the raster.
+//! Failures are a [`GridError`]: a level that cannot be opened, or a chunk
+//! that could not be read (its pixels read as NaN, the error is kept for
+//! [`Grid::take_error`]).
 
 use crate::geo::GeoTransform;
+use crate::store::{ChunkReadError, StoreError};
+
+/// Why a level of a DSM could not be opened or some of its pixels not read.
+/// The messages are those of the sources: they name the file.
+#[derive(Debug, thiserror::Error)]
+pub enum GridError {
+    /// A chunk is missing or does not decode; its pixels read as NaN.
+    #[error(transparent)]
+    Chunk(#[from] ChunkReadError),
+    /// The store could not open the level's array.
+    #[error(transparent)]
+    Level(#[from] StoreError),
+    /// An in-memory pyramid has no level `level` (it has `levels`).
+    #[error("no level {level} (the pyramid has {levels})")]
+    NoLevel { level: usize, levels: usize },
+}
+
+impl GridError {
+    /// A damaged store (a chunk or a level that cannot be read) is bad input;
+    /// asking an in-memory pyramid for a level it lacks is a bug.
+    pub fn is_bad_input(&self) -> bool {
+        match self {
+            GridError::Chunk(_) => true,
+            GridError::Level(e) => e.is_bad_input(),
+            GridError::NoLevel { .. } => false,
+        }
+    }
+}
 
 /// Read access to one level of one DSM. `&mut self` lets an implementation keep
 /// a few chunks pinned between calls (each worker owns its own view).
@@ -16,8 +47,8 @@ pub trait Grid {
     fn geotransform(&self) -> GeoTransform;
     /// Height at pixel (col, row); NaN for no-data or outside the raster.
     fn get(&mut self, col: i64, row: i64) -> f32;
-    /// The first I/O error met since the last call (reads that failed returned NaN).
-    fn take_error(&mut self) -> Option<String> {
+    /// The first read error met since the last call (reads that failed returned NaN).
+    fn take_error(&mut self) -> Option<GridError> {
         None
     }
 }
@@ -92,7 +123,7 @@ impl<G: Grid + ?Sized> Grid for &mut G {
     fn get(&mut self, col: i64, row: i64) -> f32 {
         (**self).get(col, row)
     }
-    fn take_error(&mut self) -> Option<String> {
+    fn take_error(&mut self) -> Option<GridError> {
         (**self).take_error()
     }
 }
@@ -105,7 +136,7 @@ pub trait Pyramid: Sync {
     where
         Self: 'a;
     fn num_levels(&self) -> usize;
-    fn open_level(&self, level: usize) -> Result<Self::Level<'_>, String>;
+    fn open_level(&self, level: usize) -> Result<Self::Level<'_>, GridError>;
 }
 
 /// A borrowed in-memory level.
@@ -182,10 +213,51 @@ impl Pyramid for MemPyramid {
     fn num_levels(&self) -> usize {
         self.levels.len()
     }
-    fn open_level(&self, level: usize) -> Result<MemView<'_>, String> {
+    fn open_level(&self, level: usize) -> Result<MemView<'_>, GridError> {
         self.levels
             .get(level)
             .map(MemView)
-            .ok_or_else(|| format!("no level {level}"))
+            .ok_or(GridError::NoLevel {
+                level,
+                levels: self.levels.len(),
+            })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn flat(width: i64, height: i64) -> MemGrid {
+        let gt = GeoTransform::north_up(0.0, 0.0, 1.0, 1.0);
+        MemGrid::from_fn(width, height, gt, |_, _| 1.0)
+    }
+
+    #[test]
+    fn a_missing_level_is_a_typed_error() {
+        let pyramid = MemPyramid::build(flat(8, 8), 4);
+        assert_eq!(pyramid.num_levels(), 2);
+        assert!(pyramid.open_level(1).is_ok());
+        let err = pyramid.open_level(2).err().expect("no level 2");
+        assert!(matches!(
+            err,
+            GridError::NoLevel {
+                level: 2,
+                levels: 2
+            }
+        ));
+        assert_eq!(err.to_string(), "no level 2 (the pyramid has 2)");
+        assert!(!err.is_bad_input());
+    }
+
+    #[test]
+    fn a_chunk_error_keeps_its_message_and_is_bad_input() {
+        let file = std::path::PathBuf::from("s.zarr/a/0/c/1/1");
+        let source = ChunkReadError::Missing { file };
+        let err = GridError::from(source.clone());
+        assert_eq!(err.to_string(), source.to_string());
+        assert!(err.is_bad_input());
+        let mut grid = flat(2, 2);
+        assert!(grid.take_error().is_none());
     }
 }

@@ -17,8 +17,8 @@
 //!
 //! The modules:
 //! - [`geotiff`]: GeoTIFF in pure Rust, a streaming reader (strips or tiles)
-//!   and a tiled Cloud-Optimized writer; [`raster`] the georeferencing both
-//!   share (geotransform in GDAL order, CRS from geokeys).
+//!   and a tiled Cloud-Optimized writer; [`geo`] the geometry every stage
+//!   shares (geotransform in GDAL order, CRS from geokeys, boxes, rigid transforms).
 //! - [`store`]: the collection store, one Zarr v3 multiscale group per DSM with
 //!   its catalog entry; `ingest` converts GeoTIFFs into it once.
 //! - [`cache`]: decoded chunks shared by every worker under one byte budget;
@@ -65,7 +65,6 @@ pub mod pipeline;
 pub mod plan;
 pub mod plots;
 pub mod poses;
-pub mod raster;
 pub mod rng;
 pub mod store;
 pub mod synth;

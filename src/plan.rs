@@ -10,6 +10,7 @@
 
 use rstar::{RTree, RTreeObject, AABB};
 
+use crate::geo::Bounds;
 use crate::grid::Grid;
 
 /// Long side, in pixels, of the overview used to score overlaps.
@@ -20,17 +21,15 @@ pub const OVERLAP_LEVEL_PX: u64 = 512;
 #[derive(Clone, Debug)]
 pub struct Footprint {
     pub index: usize,
-    /// [min_x, min_y, max_x, max_y] in CRS units.
-    pub bounds: [f64; 4],
+    /// The DSM's box in CRS units.
+    pub bounds: Bounds,
 }
 
 impl RTreeObject for Footprint {
     type Envelope = AABB<[f64; 2]>;
     fn envelope(&self) -> Self::Envelope {
-        AABB::from_corners(
-            [self.bounds[0], self.bounds[1]],
-            [self.bounds[2], self.bounds[3]],
-        )
+        let b = &self.bounds;
+        AABB::from_corners([b.min_x, b.min_y], [b.max_x, b.max_y])
     }
 }
 
@@ -50,14 +49,8 @@ pub fn candidate_pairs(footprints: &[Footprint]) -> Vec<(usize, usize)> {
     let rank = morton_ranks(footprints);
     let mut pairs = Vec::new();
     for f in footprints {
-        let envelope = AABB::from_corners([f.bounds[0], f.bounds[1]], [f.bounds[2], f.bounds[3]]);
-        for other in tree.locate_in_envelope_intersecting(envelope) {
-            let b = &other.bounds;
-            let positive = f.bounds[0] < b[2]
-                && b[0] < f.bounds[2]
-                && f.bounds[1] < b[3]
-                && b[1] < f.bounds[3];
-            if other.index > f.index && positive {
+        for other in tree.locate_in_envelope_intersecting(f.envelope()) {
+            if other.index > f.index && f.bounds.overlaps(&other.bounds) {
                 pairs.push((f.index, other.index));
             }
         }
@@ -77,10 +70,8 @@ fn morton_ranks(footprints: &[Footprint]) -> Vec<usize> {
     }
     let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
     for f in footprints {
-        let c = [
-            (f.bounds[0] + f.bounds[2]) / 2.0,
-            (f.bounds[1] + f.bounds[3]) / 2.0,
-        ];
+        let (x, y) = f.bounds.centre();
+        let c = [x, y];
         for k in 0..2 {
             lo[k] = lo[k].min(c[k]);
             hi[k] = hi[k].max(c[k]);
@@ -89,10 +80,8 @@ fn morton_ranks(footprints: &[Footprint]) -> Vec<usize> {
     let mut keyed: Vec<(u64, usize)> = footprints
         .iter()
         .map(|f| {
-            let c = [
-                (f.bounds[0] + f.bounds[2]) / 2.0,
-                (f.bounds[1] + f.bounds[3]) / 2.0,
-            ];
+            let (x, y) = f.bounds.centre();
+            let c = [x, y];
             let q = |k: usize| (((c[k] - lo[k]) / (hi[k] - lo[k]).max(1e-9)) * 65535.0) as u32;
             (interleave(q(0)) | (interleave(q(1)) << 1), f.index)
         })
@@ -158,13 +147,13 @@ fn covered<A: Grid + ?Sized, B: Grid + ?Sized>(a: &mut A, b: &mut B) -> (u64, u6
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geo::GeoTransform;
     use crate::grid::MemGrid;
-    use crate::raster::GeoTransform;
 
     fn fp(index: usize, x0: f64, y0: f64, size: f64) -> Footprint {
         Footprint {
             index,
-            bounds: [x0, y0, x0 + size, y0 + size],
+            bounds: Bounds::from([x0, y0, x0 + size, y0 + size]),
         }
     }
 

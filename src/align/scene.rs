@@ -151,7 +151,7 @@ fn edge(
 ) -> Edge {
     let (i, j) = (pair.reference, pair.moving);
     let (a, b) = (&store.dsms()[i], &store.dsms()[j]);
-    let (fa, fb) = (a.footprint, b.footprint);
+    let (fa, fb) = (a.footprint.to_array(), b.footprint.to_array());
     let centre_world = Vector3::new(
         (fa[0].max(fb[0]) + fa[2].min(fb[2])) / 2.0,
         (fa[1].max(fb[1]) + fa[3].min(fb[3])) / 2.0,
@@ -175,8 +175,8 @@ fn local_origin(store: &Store) -> Vector3<f64> {
     let n = store.dsms().len() as f64;
     let (mut x, mut y, mut z) = (0.0, 0.0, 0.0);
     for d in store.dsms() {
-        x += (d.footprint[0] + d.footprint[2]) / 2.0 / n;
-        y += (d.footprint[1] + d.footprint[3]) / 2.0 / n;
+        x += d.footprint.centre().0 / n;
+        y += d.footprint.centre().1 / n;
         z += d.height_stats.mean / n;
     }
     Vector3::new(x.round(), y.round(), z.round())

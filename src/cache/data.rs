@@ -11,7 +11,7 @@
 //! (tests, tiny rasters) stay in a `Vec`.
 //!
 //! A fresh map costs a page fault per 4 KiB page on first write and an unmap
-//! on eviction: a third of the time of a cache miss (`tools/bench_cache`). So a
+//! on eviction: a third of the time of a cache miss (`bench_cache`, tools/bench/cache.rs). So a
 //! dropped chunk's map goes back to the [`MapPool`] of its cache (bounded in
 //! bytes), and the next chunk of the same size is copied into pages that are
 //! already resident.

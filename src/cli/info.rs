@@ -18,17 +18,12 @@ pub struct Args {
     pub json: bool,
 }
 
-/// True when the two footprints share a region of positive area.
-fn overlaps(a: &[f64; 4], b: &[f64; 4]) -> bool {
-    a[0] < b[2] && b[0] < a[2] && a[1] < b[3] && b[1] < a[3]
-}
-
 /// Pairs (i, j), i < j, whose footprints overlap (O(N^2), fine for a catalog).
 fn overlapping_pairs(dsms: &[DsmMeta]) -> Vec<(usize, usize)> {
     let mut pairs = Vec::new();
     for i in 0..dsms.len() {
         for j in i + 1..dsms.len() {
-            if overlaps(&dsms[i].footprint, &dsms[j].footprint) {
+            if dsms[i].footprint.overlaps(&dsms[j].footprint) {
                 pairs.push((i, j));
             }
         }
@@ -102,13 +97,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 
 #[cfg(test)]
 mod tests {
-    use super::overlaps;
+    use dsmstream::geo::Bounds;
 
     #[test]
     fn touching_footprints_do_not_overlap() {
-        let a = [0.0, 0.0, 10.0, 10.0];
-        assert!(overlaps(&a, &[5.0, 5.0, 15.0, 15.0]));
-        assert!(!overlaps(&a, &[10.0, 0.0, 20.0, 10.0]));
-        assert!(!overlaps(&a, &[0.0, 11.0, 10.0, 20.0]));
+        let a = Bounds::from([0.0, 0.0, 10.0, 10.0]);
+        let overlaps = |a: &Bounds, b: [f64; 4]| a.overlaps(&Bounds::from(b));
+        assert!(overlaps(&a, [5.0, 5.0, 15.0, 15.0]));
+        assert!(!overlaps(&a, [10.0, 0.0, 20.0, 10.0]));
+        assert!(!overlaps(&a, [0.0, 11.0, 10.0, 20.0]));
     }
 }

@@ -112,7 +112,7 @@ const VERTICAL_CITATION_KEY: u16 = 4097;
 
 /// What a DSM's CRS says about its heights: "EPSG:<code>", "declared" (a
 /// vertical citation or a compound WKT without a code), or "none".
-fn vertical_reference(crs: &dsmstream::raster::Crs) -> String {
+fn vertical_reference(crs: &dsmstream::geo::Crs) -> String {
     let keys = &crs.geokeys;
     let n = keys
         .get(3)

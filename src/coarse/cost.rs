@@ -149,8 +149,8 @@ pub fn sample_box<G: Grid + ?Sized>(grid: &mut G, box_m: &[f64; 4], target: usiz
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geo::GeoTransform;
     use crate::grid::MemGrid;
-    use crate::raster::GeoTransform;
 
     fn plane_grid(offset_m: f32) -> MemGrid {
         let gt = GeoTransform::north_up(1000.0, 2000.0, 2.0, 2.0);

@@ -115,7 +115,7 @@ pub enum CoarseError {
     #[error("no shift within ±{0} m leaves enough valid overlap")]
     NoMatch(f64),
     #[error("reading the DSM failed: {0}")]
-    Read(String),
+    Read(#[from] crate::grid::GridError),
 }
 
 /// Finds the translation of `moving` onto `reference` (module docs).

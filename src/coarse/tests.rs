@@ -1,8 +1,8 @@
 //! Recovery tests of the coarse search on generated pairs with known truth.
 
 use super::*;
+use crate::geo::GeoTransform;
 use crate::grid::{MemGrid, MemPyramid};
-use crate::raster::GeoTransform;
 use crate::synth::{render_window, rigid_about, PixelEffects, Surface, SurfaceParams, TileSpec};
 
 /// A size x size tile at `gsd_m` whose top-left corner is `corner`, showing

@@ -10,8 +10,8 @@ use std::path::Path;
 use las::point::Classification;
 use las::Reader;
 
-use super::reference::overlaps;
 use super::{EvalConfig, EvalError};
+use crate::geo::Bounds;
 use crate::store::Store;
 
 /// Points read per batch.
@@ -28,7 +28,7 @@ impl LasSamples {
         store: &Store,
         path: &Path,
         config: &EvalConfig,
-        store_bounds: [f64; 4],
+        store_bounds: Bounds,
     ) -> Result<LasSamples, EvalError> {
         let bad = |m: String| EvalError::Input(format!("{}: {m}", path.display()));
         let mut reader = Reader::from_path(path).map_err(|e| bad(e.to_string()))?;
@@ -50,10 +50,12 @@ impl LasSamples {
             ),
         }
         let b = header.bounds();
-        let bounds = [b.min.x, b.min.y, b.max.x, b.max.y];
-        if !overlaps(bounds, store_bounds) {
+        let bounds = Bounds::from([b.min.x, b.min.y, b.max.x, b.max.y]);
+        if !bounds.overlaps(&store_bounds) {
             return Err(bad(format!(
-                "does not overlap the store (points {bounds:.1?}, store {store_bounds:.1?})"
+                "does not overlap the store (points {:.1?}, store {:.1?})",
+                bounds.to_array(),
+                store_bounds.to_array()
             )));
         }
         let total = header.number_of_points();

@@ -60,10 +60,10 @@ pub fn eval_pairs(
         .map(|(k, p)| Footprint {
             index: k,
             bounds: match after {
-                Some(a) => Bounds::from(p.corrected_bounds)
-                    .union(&a.placed[k].corrected_bounds.into())
-                    .to_array(),
-                None => p.corrected_bounds,
+                Some(a) => {
+                    Bounds::from(p.corrected_bounds).union(&a.placed[k].corrected_bounds.into())
+                }
+                None => p.corrected_bounds.into(),
             },
         })
         .collect();
@@ -73,7 +73,7 @@ pub fn eval_pairs(
         pairs
             .par_iter()
             .map(|&(i, j)| {
-                let region = Bounds::from(footprints[i].bounds).clip(&footprints[j].bounds.into());
+                let region = footprints[i].bounds.clip(&footprints[j].bounds);
                 let result = eval_pair(store, cache, before, after, config, i, j, region);
                 config.progress.tick();
                 result

@@ -113,18 +113,14 @@ pub fn eval_reference(
     })
 }
 
-/// Bounds of every DSM before and after correction.
-fn coverage(before: &Placement, after: Option<&Placement>) -> [f64; 4] {
+/// The box of every DSM before and after correction.
+fn coverage(before: &Placement, after: Option<&Placement>) -> Bounds {
     let all = before
         .placed
         .iter()
         .chain(after.iter().flat_map(|a| a.placed.iter()))
-        .map(|p| p.corrected_bounds);
-    crate::fuse::layout::union_bounds(all).unwrap_or([0.0; 4])
-}
-
-pub(crate) fn overlaps(a: [f64; 4], b: [f64; 4]) -> bool {
-    Bounds::from(a).overlaps(&b.into())
+        .map(|p| Bounds::from(p.corrected_bounds));
+    Bounds::union_all(all).unwrap_or(Bounds::from([0.0; 4]))
 }
 
 fn diff_chunk(
@@ -164,7 +160,7 @@ fn raster_points(
     store: &Store,
     path: &Path,
     config: &EvalConfig,
-    store_bounds: [f64; 4],
+    store_bounds: Bounds,
 ) -> Result<(Vec<[f64; 3]>, Vec<String>), EvalError> {
     let mut reader = GeoTiffReader::open(path)?;
     let info = reader.info().clone();
@@ -179,11 +175,13 @@ fn raster_points(
         }
     }
     let gt = info.geotransform;
-    let bounds = gt.bounds(info.width, info.height);
-    if !overlaps(bounds, store_bounds) {
+    let bounds = gt.extent(info.width, info.height);
+    if !bounds.overlaps(&store_bounds) {
         return Err(EvalError::Input(format!(
-            "{}: does not overlap the store (reference {bounds:.1?}, store {store_bounds:.1?})",
-            path.display()
+            "{}: does not overlap the store (reference {:.1?}, store {:.1?})",
+            path.display(),
+            bounds.to_array(),
+            store_bounds.to_array()
         )));
     }
     let mut stride = 1u64;

@@ -7,9 +7,9 @@ use std::path::Path;
 use nalgebra::Matrix4;
 
 use super::*;
+use crate::geo::{Crs, GeoTransform};
 use crate::geotiff::writer::{write_geotiff_f32, CogOptions};
 use crate::poses::{GaugeLabel, GraphKind, PoseEntry, PosesFile};
-use crate::raster::{Crs, GeoTransform};
 use crate::store::{ingest, ingest::NoProgress, IngestOptions};
 
 fn crs(epsg: u32) -> Crs {

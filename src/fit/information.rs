@@ -354,5 +354,4 @@ fn kept_inverse(
 }
 
 #[cfg(test)]
-#[path = "information_tests.rs"]
 mod tests;

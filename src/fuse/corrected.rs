@@ -13,8 +13,8 @@
 
 use nalgebra::Matrix4;
 
+use crate::geo::GeoTransform;
 use crate::grid::Grid;
-use crate::raster::GeoTransform;
 
 /// Fixed-point iterations of [`CorrectedSurface::height_at`].
 pub const FIXED_POINT_ITERATIONS: usize = 2;

@@ -7,8 +7,8 @@ use rstar::{RTree, AABB};
 
 use super::corrected::PoseXf;
 use crate::geo::Bounds;
+use crate::geo::GeoTransform;
 use crate::plan::Footprint;
-use crate::raster::GeoTransform;
 use crate::store::{DsmMeta, Store};
 
 /// Relative tolerance when comparing cell sizes.
@@ -35,7 +35,7 @@ impl PlacedDsm {
         };
         PlacedDsm {
             index,
-            corrected_bounds: pose.map_bounds(meta.footprint, z_range),
+            corrected_bounds: pose.map_bounds(meta.footprint.to_array(), z_range),
             z_start_m: if s.mean.is_finite() { s.mean } else { 0.0 },
         }
     }
@@ -110,7 +110,7 @@ impl FootprintIndex {
                     .enumerate()
                     .map(|(slot, p)| Footprint {
                         index: slot,
-                        bounds: p.corrected_bounds,
+                        bounds: p.corrected_bounds.into(),
                     })
                     .collect(),
             ),

@@ -34,7 +34,7 @@ pub struct MosaicTooLarge {
 fn farthest_move(store: &Store, poses: &PoseSet, placed: &[PlacedDsm]) -> String {
     let mut best: Option<(f64, usize)> = None;
     for p in placed {
-        let f = store.dsms()[p.index].footprint;
+        let f = store.dsms()[p.index].footprint.to_array();
         let centre = [(f[0] + f[2]) / 2.0, (f[1] + f[3]) / 2.0, p.z_start_m];
         let moved = poses.poses[p.index].apply(centre);
         let d = ((moved[0] - centre[0]).powi(2) + (moved[1] - centre[1]).powi(2)).sqrt();
@@ -97,7 +97,7 @@ pub fn check_mosaic(
     let covered_px: f64 = placed
         .iter()
         .map(|p| {
-            let f = store.dsms()[p.index].footprint;
+            let f = store.dsms()[p.index].footprint.to_array();
             ((f[2] - f[0]) / gsd).max(1.0) * ((f[3] - f[1]) / gsd).max(1.0)
         })
         .sum();

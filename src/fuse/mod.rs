@@ -23,9 +23,9 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use crate::cache::{CacheStats, ChunkCache};
+use crate::geo::GeoTransform;
 use crate::geotiff::writer::{CogOptions, CogWriter, GeoTiffWriteError};
 use crate::poses::PosesError;
-use crate::raster::GeoTransform;
 use crate::store::{Store, StoreError};
 pub use corrected::{CorrectedSurface, PoseXf};
 pub use layout::{OutputGrid, PlacedDsm};

@@ -6,10 +6,10 @@ use std::path::{Path, PathBuf};
 use nalgebra::Matrix4;
 
 use super::*;
+use crate::geo::Crs;
 use crate::geotiff::reader::GeoTiffReader;
 use crate::geotiff::writer::write_geotiff_f32;
 use crate::poses::{GaugeLabel, GraphKind, PoseEntry, PosesFile};
-use crate::raster::Crs;
 use crate::store::{ingest, ingest::NoProgress, IngestOptions};
 
 const GSD: f64 = 0.5;

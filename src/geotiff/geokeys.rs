@@ -6,7 +6,7 @@
 //! GDAL_NODATA (42113) becomes an `f64`. [`encode_crs`] gives the geokey tags
 //! to write back for a [`Crs`]. Pure functions over tag values: no file access.
 
-use crate::raster::{Crs, GeoTransform};
+use crate::geo::{Crs, GeoTransform};
 
 /// TIFF tag numbers of the GeoTIFF and GDAL extensions.
 pub mod tag {

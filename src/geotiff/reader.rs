@@ -23,8 +23,8 @@ mod tests;
 use std::fs::File;
 use std::path::{Path, PathBuf};
 
+use crate::geo::{Crs, GeoTransform};
 use crate::geotiff::geokeys::GeoKeyError;
-use crate::raster::{Crs, GeoTransform};
 use decode::{BlockDecoder, MapBytes, RowSink};
 
 /// Every way opening or reading a GeoTIFF can fail. Display: one line naming the file.

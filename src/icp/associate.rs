@@ -10,7 +10,7 @@ use rayon::prelude::*;
 
 use super::Metric;
 use crate::fit::Correspondence;
-use crate::grid::{Grid, Pyramid};
+use crate::grid::{Grid, GridError, Pyramid};
 use crate::nn::{nearest, normal_at, surface_below_memo, NnStats, PixelFrame, PlaneMemo};
 
 const BLOCK: usize = 4096;
@@ -57,7 +57,7 @@ impl<P: Pyramid> Matcher<'_, P> {
         points: &[Vector3<f64>],
         memo: &mut [PlaneMemo],
         t_ref_moving: &Isometry3<f64>,
-    ) -> Result<Association, String> {
+    ) -> Result<Association, GridError> {
         associate(self, points, memo, t_ref_moving)
     }
 }
@@ -70,7 +70,7 @@ pub fn associate<P: Pyramid>(
     points: &[Vector3<f64>],
     memo: &mut [PlaneMemo],
     t_ref_moving: &Isometry3<f64>,
-) -> Result<Association, String> {
+) -> Result<Association, GridError> {
     assert_eq!(points.len(), memo.len(), "one plane memo per point");
     // Every block writes its matches into its own slice of one allocation
     // (a slot per query), then the matches are moved to the front in input
@@ -88,7 +88,7 @@ pub fn associate<P: Pyramid>(
         queries: points.len(),
         ..Default::default()
     };
-    let counts: Vec<Result<(usize, NnStats), String>> = points
+    let counts: Vec<Result<(usize, NnStats), GridError>> = points
         .par_chunks(BLOCK)
         .zip(memo.par_chunks_mut(BLOCK))
         .zip(all.corrs.par_chunks_mut(BLOCK))
@@ -128,7 +128,7 @@ fn match_block<P: Pyramid>(
     memo: &mut [PlaneMemo],
     t_ref_moving: &Isometry3<f64>,
     slots: Slots<'_>,
-) -> Result<(usize, NnStats), String> {
+) -> Result<(usize, NnStats), GridError> {
     let mut grid = matcher.reference.open_level(matcher.level)?;
     let (mut below, mut nn) = (0usize, NnStats::default());
     for (i, (p, memo)) in block.iter().zip(memo).enumerate() {

@@ -168,5 +168,5 @@ pub enum IcpError {
     #[error("no valid pixels in the overlap of the two DSMs")]
     EmptyOverlap,
     #[error("reading the DSM failed: {0}")]
-    Read(String),
+    Read(#[from] crate::grid::GridError),
 }

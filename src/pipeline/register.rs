@@ -4,7 +4,7 @@
 use super::outcome::{Failure, IcpFit, PairInformation, PairOutcome, PairTask};
 use super::PipelineConfig;
 use crate::cache::ChunkCache;
-use crate::grid::{Grid, Pyramid};
+use crate::grid::{Grid, GridError, Pyramid};
 use crate::icp::register;
 use crate::plan::{overlap_score, scoring_level};
 use crate::store::{DsmMeta, Store, StorePyramid};
@@ -78,7 +78,7 @@ fn score(
     moving: &StorePyramid<'_>,
     ri: &DsmMeta,
     mi: &DsmMeta,
-) -> Result<f64, String> {
+) -> Result<f64, GridError> {
     let sizes = |m: &DsmMeta| {
         m.levels
             .iter()

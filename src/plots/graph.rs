@@ -8,6 +8,7 @@ use super::axes::{colour_bar, Frame};
 use super::canvas::{Align, Canvas, BLACK, GREY};
 use super::colormap::ColorMap;
 use super::PlotError;
+use crate::geo::Bounds;
 
 /// Sideways bow of edge curves, as a fraction of their length.
 const EDGE_BOW: f64 = 0.12;
@@ -26,11 +27,11 @@ const FOOTPRINT_HUES: [[u8; 3]; 10] = [
     [23, 190, 207],
 ];
 
-/// One DSM: its id and (corrected) footprint [min_x, min_y, max_x, max_y].
+/// One DSM: its id and (corrected) footprint.
 #[derive(Clone, Debug)]
 pub struct GraphNode {
     pub id: String,
-    pub bounds: [f64; 4],
+    pub bounds: Bounds,
 }
 
 /// One pair between nodes `a` and `b` (indices into the node list).
@@ -52,31 +53,17 @@ pub fn scene_graph_png(
     value_label: &str,
     title: &str,
 ) -> Result<(), PlotError> {
-    let b = nodes.iter().fold(
-        [
-            f64::INFINITY,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-            f64::NEG_INFINITY,
-        ],
-        |a, n| {
-            [
-                a[0].min(n.bounds[0]),
-                a[1].min(n.bounds[1]),
-                a[2].max(n.bounds[2]),
-                a[3].max(n.bounds[3]),
-            ]
-        },
-    );
-    if !b.iter().all(|v| v.is_finite()) {
+    let b = Bounds::union_all(nodes.iter().map(|n| n.bounds))
+        .filter(|b| b.to_array().iter().all(|v| v.is_finite()));
+    let Some(b) = b else {
         return Err(PlotError(format!(
             "{}: no footprint to draw",
             path.display()
         )));
-    }
+    };
     // equal scale: fit the data box (padded 3 %) into at most 800 x 640 px
-    let pad = 0.03 * (b[2] - b[0]).max(b[3] - b[1]);
-    let (dx, dy) = (b[2] - b[0] + 2.0 * pad, b[3] - b[1] + 2.0 * pad);
+    let pad = 0.03 * b.width().max(b.height());
+    let (dx, dy) = (b.width() + 2.0 * pad, b.height() + 2.0 * pad);
     let scale = (800.0 / dx).min(640.0 / dy);
     let (w, h) = ((dx * scale) as i64, (dy * scale) as i64);
     let (cw, ch) = (120 + w.max(500) + 190, 70 + h.max(300) + 90);
@@ -87,14 +74,14 @@ pub fn scene_graph_png(
         top: 70 + (h.max(300) - h) / 2,
         width: w,
         height: h,
-        x_range: (b[0] - pad, b[2] + pad),
-        y_range: (b[1] - pad, b[3] + pad),
+        x_range: (b.min_x - pad, b.max_x + pad),
+        y_range: (b.min_y - pad, b.max_y + pad),
     };
     // footprints: a light tint and an outline each, in a cycle of distinct hues
     for (k, n) in nodes.iter().enumerate() {
         let hue = FOOTPRINT_HUES[k % FOOTPRINT_HUES.len()];
-        let (x0, y0) = frame.to_px(n.bounds[0], n.bounds[3]);
-        let (x1, y1) = frame.to_px(n.bounds[2], n.bounds[1]);
+        let (x0, y0) = frame.to_px(n.bounds.min_x, n.bounds.max_y);
+        let (x1, y1) = frame.to_px(n.bounds.max_x, n.bounds.min_y);
         let (x0, y0, x1, y1) = (x0 as i64, y0 as i64, x1 as i64, y1 as i64);
         for y in y0..y1 {
             for x in x0..x1 {
@@ -112,10 +99,8 @@ pub fn scene_graph_png(
         .collect();
     let vmax = finite.iter().copied().fold(0.0f64, f64::max).max(1e-3);
     let centre = |n: &GraphNode| {
-        frame.to_px(
-            (n.bounds[0] + n.bounds[2]) / 2.0,
-            (n.bounds[1] + n.bounds[3]) / 2.0,
-        )
+        let (x, y) = n.bounds.centre();
+        frame.to_px(x, y)
     };
     let thickness = if edges.len() > 200 { 2 } else { 4 };
     let mut order: Vec<&GraphEdge> = edges.iter().collect();

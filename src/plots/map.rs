@@ -8,12 +8,13 @@ use super::axes::{colour_bar, nice_step, Frame};
 use super::canvas::{Align, Canvas, BLACK, LIGHT_GREY};
 use super::colormap::ColorMap;
 use super::{percentile, PlotError};
+use crate::geo::Bounds;
 
 /// Cell means over a box, row-major from the top; NaN = no sample.
 #[derive(Clone, Debug)]
 pub struct MapGrid {
-    /// [min_x, min_y, max_x, max_y].
-    pub bounds: [f64; 4],
+    /// The box the cells tile (CRS units).
+    pub bounds: Bounds,
     pub width: usize,
     pub height: usize,
     pub values: Vec<f32>,
@@ -24,10 +25,10 @@ impl MapGrid {
     /// `max_cells` cells along the long side of `bounds`.
     pub fn bin(
         samples: impl Iterator<Item = (f64, f64, f32)>,
-        bounds: [f64; 4],
+        bounds: Bounds,
         max_cells: usize,
     ) -> MapGrid {
-        let (dx, dy) = (bounds[2] - bounds[0], bounds[3] - bounds[1]);
+        let (dx, dy) = (bounds.width(), bounds.height());
         let cell = dx.max(dy) / max_cells.max(1) as f64;
         let width = ((dx / cell).ceil() as usize).max(1);
         let height = ((dy / cell).ceil() as usize).max(1);
@@ -37,8 +38,8 @@ impl MapGrid {
             if v.is_nan() {
                 continue;
             }
-            let c = ((x - bounds[0]) / cell).floor();
-            let r = ((bounds[3] - y) / cell).floor();
+            let c = ((x - bounds.min_x) / cell).floor();
+            let r = ((bounds.max_y - y) / cell).floor();
             if c < 0.0 || r < 0.0 || c >= width as f64 || r >= height as f64 {
                 continue;
             }
@@ -89,7 +90,7 @@ pub fn diff_map_png(
         1.0
     };
     let b = panels[0].1.bounds;
-    let (dx, dy) = (b[2] - b[0], b[3] - b[1]);
+    let (dx, dy) = (b.width(), b.height());
     let side = 480.0;
     let scale = (side / dx).min(side / dy);
     let (pw, ph) = ((dx * scale).round() as i64, (dy * scale).round() as i64);
@@ -105,8 +106,8 @@ pub fn diff_map_png(
             top,
             width: pw,
             height: ph,
-            x_range: (grid.bounds[0], grid.bounds[2]),
-            y_range: (grid.bounds[1], grid.bounds[3]),
+            x_range: (grid.bounds.min_x, grid.bounds.max_x),
+            y_range: (grid.bounds.min_y, grid.bounds.max_y),
         };
         for py in 0..ph {
             for px in 0..pw {

@@ -11,6 +11,7 @@ use super::{
 };
 use crate::eval::{DiffSample, DiffStats, EvalReport, PlotData};
 use crate::fuse::{PlacedDsm, PoseSet};
+use crate::geo::Bounds;
 use crate::store::Store;
 
 /// Colour of the "before" series (orange).
@@ -74,7 +75,9 @@ fn scene_graph(
         .enumerate()
         .map(|(i, m)| GraphNode {
             id: m.id.clone(),
-            bounds: PlacedDsm::new(i, m, &placed_by.poses[i]).corrected_bounds,
+            bounds: PlacedDsm::new(i, m, &placed_by.poses[i])
+                .corrected_bounds
+                .into(),
         })
         .collect();
     let file_edges = poses.and_then(|p| p.file.as_ref()).map(|f| &f.edges);
@@ -186,15 +189,15 @@ fn reference_map(
     tau: f32,
     samples: &[DiffSample],
 ) -> Result<(), PlotError> {
-    let bounds = samples.iter().fold(
-        [
-            f64::INFINITY,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-            f64::NEG_INFINITY,
-        ],
-        |b, s| [b[0].min(s.x), b[1].min(s.y), b[2].max(s.x), b[3].max(s.y)],
-    );
+    let nothing = Bounds::from([
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ]);
+    let bounds = samples.iter().fold(nothing, |b, s| {
+        b.union(&Bounds::from_corners((s.x, s.y), (s.x, s.y)))
+    });
     let grid = |after: bool| {
         MapGrid::bin(
             samples.iter().map(|s| {

@@ -3,6 +3,7 @@
 use super::canvas::{Align, Canvas, BLACK, WHITE};
 use super::colormap::ColorMap;
 use super::*;
+use crate::geo::Bounds;
 
 fn pixel(img: &image::RgbImage, x: u32, y: u32) -> [u8; 3] {
     img.get_pixel(x, y).0
@@ -16,7 +17,11 @@ fn bins_average_samples_per_cell() {
         (9.5, 0.5, -2.0),
         (5.0, 5.0, f32::NAN),
     ];
-    let g = MapGrid::bin(samples.into_iter(), [0.0, 0.0, 10.0, 10.0], 10);
+    let g = MapGrid::bin(
+        samples.into_iter(),
+        Bounds::from([0.0, 0.0, 10.0, 10.0]),
+        10,
+    );
     assert_eq!((g.width, g.height), (10, 10));
     assert_eq!(g.values[0], 2.0); // top-left cell: mean of 1 and 3
     assert_eq!(g.values[9 * 10 + 9], -2.0); // bottom-right
@@ -40,7 +45,7 @@ fn every_plot_renders() {
     let nodes: Vec<GraphNode> = (0..3)
         .map(|k| GraphNode {
             id: format!("t{k}"),
-            bounds: [k as f64 * 50.0, 0.0, k as f64 * 50.0 + 100.0, 100.0],
+            bounds: Bounds::from([k as f64 * 50.0, 0.0, k as f64 * 50.0 + 100.0, 100.0]),
         })
         .collect();
     let edges = vec![
@@ -99,7 +104,7 @@ fn every_plot_renders() {
                 (k % 10) as f32 - 4.5,
             )
         }),
-        [0.0, 0.0, 10.0, 10.0],
+        Bounds::from([0.0, 0.0, 10.0, 10.0]),
         10,
     );
     let p = dir.path().join("m.png");

@@ -14,7 +14,7 @@ use serde_json::{json, Value};
 
 use super::chunks::ChunkRecord;
 use super::{validate, StoreError};
-use crate::raster::{Crs, GeoTransform};
+use crate::geo::{Bounds, Crs, GeoTransform};
 
 /// Version of the attribute layout written by this code.
 pub const STORE_VERSION: u32 = 1;
@@ -58,7 +58,7 @@ pub enum Compression {
 /// zstd level of `--compression zstd` and of the default settings. Level 1:
 /// on float32 heights (noisy mantissa bytes) level 3 costs ~35 % more ingest
 /// CPU for 0.5 % smaller chunks on a 20000^2 generated DSM and 0-14 % on the
-/// real rasters of ../shared/data (tools/bench_results.md).
+/// real rasters of ../shared/data (tools/results/bench_results.md).
 pub const DEFAULT_ZSTD_LEVEL: i32 = 1;
 
 impl Compression {
@@ -114,8 +114,9 @@ pub struct DsmMeta {
     pub nodata: Option<f64>,
     pub valid_count: u64,
     pub height_stats: HeightStats,
-    /// [min_x, min_y, max_x, max_y] of the valid pixels, in CRS units.
-    pub footprint: [f64; 4],
+    /// The box of the valid pixels, in CRS units (on disk the array
+    /// `[min_x, min_y, max_x, max_y]`).
+    pub footprint: Bounds,
     pub levels: Vec<LevelMeta>,
     pub source: SourceInfo,
     /// Sample type of the source file, GDAL names: "Float32", "Int16", ...
@@ -305,7 +306,7 @@ pub(crate) mod tests {
                 mean: 80.125,
                 std: 3.5,
             },
-            footprint: [630_010.0, 4_832_700.0, 630_500.0, 4_833_000.0],
+            footprint: Bounds::from([630_010.0, 4_832_700.0, 630_500.0, 4_833_000.0]),
             levels: vec![
                 LevelMeta {
                     width: 1000,
@@ -352,6 +353,19 @@ pub(crate) mod tests {
         m.nodata = None;
         write_group_attributes(dir.path(), &m.to_attributes()).unwrap();
         assert_eq!(read_dsm(dir.path()).unwrap(), m);
+    }
+
+    #[test]
+    fn footprint_is_written_as_the_array_it_always_was() {
+        let meta = sample_meta("a");
+        let text = serde_json::to_string(&meta.to_attributes()).unwrap();
+        let array: [f64; 4] = [630_010.0, 4_832_700.0, 630_500.0, 4_833_000.0];
+        let expected = format!("\"footprint\":{}", serde_json::to_string(&array).unwrap());
+        assert!(text.contains(&expected), "{text}");
+        assert!(text.contains("\"footprint\":[630010.0,4832700.0,630500.0,4833000.0]"));
+        let dir = tempfile::tempdir().unwrap();
+        write_group_attributes(dir.path(), &meta.to_attributes()).unwrap();
+        assert_eq!(read_dsm(dir.path()).unwrap().footprint, Bounds::from(array));
     }
 
     #[test]

@@ -114,7 +114,7 @@ fn check_dsm(
     root: &Path,
     fs: &Arc<FilesystemStore>,
     id: &str,
-    crs: Option<&crate::raster::Crs>,
+    crs: Option<&crate::geo::Crs>,
 ) -> DsmCheck {
     let mut problems = Problems::default();
     let mut chunks_read = 0;
@@ -299,8 +299,9 @@ fn compare_stats(file: &Path, meta: &DsmMeta, stats: &HeightAccumulator, problem
     let footprint = stats.footprint(&meta.geotransform, meta.width, meta.height);
     if footprint != meta.footprint {
         problems.add(format!(
-            "{file}: level 0 footprint {footprint:?} differs from the catalog's {:?}",
-            meta.footprint
+            "{file}: level 0 footprint {:?} differs from the catalog's {:?}",
+            footprint.to_array(),
+            meta.footprint.to_array()
         ));
     }
 }

@@ -275,7 +275,7 @@ pub fn commit(
     root: &Path,
     id: &str,
     tmp: &Path,
-    crs: &crate::raster::Crs,
+    crs: &crate::geo::Crs,
 ) -> Result<RootAttrs, StoreError> {
     let _lock = super::StoreLock::acquire(root)?;
     let mut attrs = catalog::read_root(root)?;

@@ -5,7 +5,7 @@
 //! `ZARR:"store.zarr":/<id>/0` opens with its CRS and geotransform. The group's
 //! `multiscales` listing (see [`multiscales`]) follows the multiscales convention.
 
-use crate::geo::{Crs, GeoTransform};
+use crate::geo::{Bounds, Crs, GeoTransform};
 use serde_json::{json, Map, Value};
 
 /// `zarr_conventions` entry of the spatial convention (v1).
@@ -47,8 +47,9 @@ pub fn spatial_transform(gt: &GeoTransform) -> [f64; 6] {
     [g[1], g[2], g[0], g[4], g[5], g[3]]
 }
 
-/// [xmin, ymin, xmax, ymax] of the corners of a `height` x `width` grid.
-fn bbox(gt: &GeoTransform, height: u64, width: u64) -> [f64; 4] {
+/// The box of the four corners of a `height` x `width` grid (any affine
+/// transform; written as `[xmin, ymin, xmax, ymax]`).
+fn bbox(gt: &GeoTransform, height: u64, width: u64) -> Bounds {
     let g = gt.0;
     let corner = |col: f64, row: f64| {
         (
@@ -62,14 +63,7 @@ fn bbox(gt: &GeoTransform, height: u64, width: u64) -> [f64; 4] {
         corner(0.0, height as f64),
         corner(width as f64, height as f64),
     ];
-    let xs = corners.iter().map(|c| c.0);
-    let ys = corners.iter().map(|c| c.1);
-    [
-        xs.clone().fold(f64::INFINITY, f64::min),
-        ys.clone().fold(f64::INFINITY, f64::min),
-        xs.fold(f64::NEG_INFINITY, f64::max),
-        ys.fold(f64::NEG_INFINITY, f64::max),
-    ]
+    Bounds::union_all(corners.map(|c| Bounds::from_corners(c, c))).expect("four corners")
 }
 
 /// The `spatial:` (and, with an EPSG code, `proj:`) attributes of one level array.

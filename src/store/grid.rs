@@ -8,7 +8,7 @@
 //! are NaN. A chunk the DSM's [`ChunkRecord`] lists as empty is NaN without
 //! touching the disk; any other chunk must have a file. A chunk that is
 //! missing or fails to load reads as NaN and the error is kept for
-//! [`StoreGrid::take_chunk_error`] (and, as text, [`Grid::take_error`]).
+//! [`StoreGrid::take_chunk_error`] (and, as a [`GridError`], [`Grid::take_error`]).
 
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -16,8 +16,8 @@ use std::sync::Arc;
 use super::chunks::{chunk_grid, ChunkRecord};
 use super::{LevelArray, Store, StoreError};
 use crate::cache::{Chunk, ChunkCache, ChunkKey};
-use crate::grid::Grid;
-use crate::raster::GeoTransform;
+use crate::geo::GeoTransform;
+use crate::grid::{Grid, GridError};
 
 /// How many chunks a grid keeps pinned.
 pub const PINNED_CHUNKS: usize = 8;
@@ -257,7 +257,7 @@ impl Grid for StoreGrid<'_> {
         chunk.data[dy * chunk.width + dx]
     }
 
-    fn take_error(&mut self) -> Option<String> {
-        self.error.take().map(|e| e.to_string())
+    fn take_error(&mut self) -> Option<GridError> {
+        self.error.take().map(GridError::Chunk)
     }
 }

@@ -44,7 +44,7 @@ pub use ingest::{ingest, IngestError, IngestOptions, IngestReport};
 pub use lock::StoreLock;
 pub use view::StorePyramid;
 
-use crate::raster::Crs;
+use crate::geo::Crs;
 
 /// One zarrs array of the store (one level of one DSM).
 pub type LevelArray = Array<FilesystemStore>;
@@ -300,4 +300,10 @@ impl Store {
 }
 
 #[cfg(test)]
-mod tests;
+mod tests_chunks;
+#[cfg(test)]
+mod tests_ingest;
+#[cfg(test)]
+mod tests_round_trip;
+#[cfg(test)]
+mod tests_support;

@@ -11,7 +11,7 @@ use super::lock::{StoreLock, LOCK_FILE};
 use super::source::SourceOpener;
 use super::source::SourceRaster;
 use super::{validate, StoreError};
-use crate::raster::Crs;
+use crate::geo::Crs;
 
 pub(super) fn check_options(s: &StorageSettings) -> Result<(), IngestError> {
     let (lo, hi) = validate::CHUNK_RANGE_PX;

@@ -7,8 +7,8 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::geo::{Crs, GeoTransform};
 use crate::geotiff::reader::GeoTiffReader;
-use crate::raster::{Crs, GeoTransform};
 
 /// What ingest needs to know about a raster before reading it.
 #[derive(Clone, Debug, PartialEq)]

@@ -6,7 +6,7 @@
 use rayon::prelude::*;
 
 use super::catalog::HeightStats;
-use crate::raster::GeoTransform;
+use crate::geo::{Bounds, GeoTransform};
 
 #[derive(Clone, Debug)]
 pub struct HeightAccumulator {
@@ -98,16 +98,15 @@ impl HeightAccumulator {
         })
     }
 
-    /// World bounds [min_x, min_y, max_x, max_y] of the valid pixels (outer
-    /// pixel edges); the raster bounds when nothing was valid.
-    pub fn footprint(&self, gt: &GeoTransform, width: u64, height: u64) -> [f64; 4] {
+    /// World box of the valid pixels (outer pixel edges); the raster's
+    /// extent when nothing was valid.
+    pub fn footprint(&self, gt: &GeoTransform, width: u64, height: u64) -> Bounds {
         match self.bbox {
-            None => gt.bounds(width, height),
-            Some([c0, r0, c1, r1]) => {
-                let (xa, ya) = gt.pixel_to_world(c0 as f64, r0 as f64);
-                let (xb, yb) = gt.pixel_to_world(c1 as f64 + 1.0, r1 as f64 + 1.0);
-                [xa.min(xb), ya.min(yb), xa.max(xb), ya.max(yb)]
-            }
+            None => gt.extent(width, height),
+            Some([c0, r0, c1, r1]) => Bounds::from_corners(
+                gt.pixel_to_world(c0 as f64, r0 as f64),
+                gt.pixel_to_world(c1 as f64 + 1.0, r1 as f64 + 1.0),
+            ),
         }
     }
 }
@@ -221,7 +220,10 @@ mod tests {
         assert!((s.mean - mean).abs() < 1e-9 && (s.std - std).abs() < 1e-9);
         let gt = GeoTransform::north_up(100.0, 200.0, 2.0, 2.0);
         // valid cols 0..=2, rows 0..=3
-        assert_eq!(acc.footprint(&gt, 3, 4), [100.0, 192.0, 106.0, 200.0]);
+        assert_eq!(
+            acc.footprint(&gt, 3, 4).to_array(),
+            [100.0, 192.0, 106.0, 200.0]
+        );
     }
 
     #[test]
@@ -276,6 +278,6 @@ mod tests {
         acc.add_rows(&mut rows, 4, 0);
         assert!(acc.height_stats().is_none());
         let gt = GeoTransform::north_up(0.0, 0.0, 1.0, 1.0);
-        assert_eq!(acc.footprint(&gt, 4, 2), [0.0, -2.0, 4.0, 0.0]);
+        assert_eq!(acc.footprint(&gt, 4, 2).to_array(), [0.0, -2.0, 4.0, 0.0]);
     }
 }

@@ -9,7 +9,7 @@ use std::collections::HashSet;
 
 use super::catalog::{DsmMeta, LevelMeta, RootAttrs};
 use super::LevelArray;
-use crate::raster::{Crs, GeoTransform};
+use crate::geo::{Crs, GeoTransform};
 
 /// Pixel sizes outside this range (CRS units, metres) are not a DSM.
 pub const GSD_RANGE_M: (f64, f64) = (1e-6, 1e6);
@@ -174,7 +174,7 @@ pub fn check_dsm(meta: &DsmMeta) -> Result<(), String> {
             "height statistics {s:?} are not finite and consistent"
         ));
     }
-    let f = &meta.footprint;
+    let f = &meta.footprint.to_array();
     let b = meta.geotransform.bounds(meta.width, meta.height);
     let tol = meta.gsd_m();
     let inside =
@@ -245,9 +245,9 @@ mod tests {
             ("min > max", Box::new(|m| m.height_stats.min = 1e6)),
             (
                 "inf footprint",
-                Box::new(|m| m.footprint[2] = f64::INFINITY),
+                Box::new(|m| m.footprint.max_x = f64::INFINITY),
             ),
-            ("footprint outside", Box::new(|m| m.footprint[0] = 0.0)),
+            ("footprint outside", Box::new(|m| m.footprint.min_x = 0.0)),
             ("no valid pixels", Box::new(|m| m.valid_count = 0)),
             ("chunk 0", Box::new(|m| m.levels[1].chunk = 0)),
             ("storage chunk 0", Box::new(|m| m.storage.chunk = 0)),

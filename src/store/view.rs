@@ -2,7 +2,7 @@
 //! that reads through the shared chunk cache.
 
 use crate::cache::ChunkCache;
-use crate::grid::Pyramid;
+use crate::grid::{GridError, Pyramid};
 use crate::store::{Store, StoreGrid};
 
 /// All levels of one DSM of a store, read through `cache`.
@@ -28,7 +28,7 @@ impl Pyramid for StorePyramid<'_> {
         self.store.dsms()[self.dsm].levels.len()
     }
 
-    fn open_level(&self, level: usize) -> Result<StoreGrid<'_>, String> {
-        StoreGrid::new(self.store, self.cache, self.dsm, level).map_err(|e| e.to_string())
+    fn open_level(&self, level: usize) -> Result<StoreGrid<'_>, GridError> {
+        Ok(StoreGrid::new(self.store, self.cache, self.dsm, level)?)
     }
 }

@@ -3,7 +3,7 @@
 //! changed buildings), a tile cutter that perturbs every tile by a known rigid
 //! motion and adds noise, outliers and voids, and the writers of tile sets,
 //! `truth.json` and truth grids; and `cut`, the same known-answer collections
-//! cut from a real DSM. `tools/dsmgen.rs` is the command line over it.
+//! cut from a real DSM. `tools/dsmgen/main.rs` is the command line over it.
 //!
 //! Parts: `crate::rng` (SplitMix64 and coordinate hashes) → `objects` (per-cell
 //! buildings and trees) → `surface` (the height function) → `tiles` (layout,

@@ -10,8 +10,8 @@ use serde::{Deserialize, Serialize};
 use super::surface::{Surface, SurfaceParams};
 use super::tiles::{plan_tiles, render_window, PixelEffects, TileSetParams, TileSpec};
 use super::SynthError;
+use crate::geo::{Crs, GeoTransform};
 use crate::geotiff::writer::{CogOptions, CogWriter};
-use crate::raster::{Crs, GeoTransform};
 
 /// The expected answer for a tile set (truth.json). A synthetic set (`dsmgen
 /// tiles`) carries `generation` and `surface`, from which the true surface can

@@ -148,8 +148,8 @@ fn a_failed_pair_is_reported_and_align_goes_on() {
 
 #[test]
 fn pair_refuses_an_overlap_that_is_all_no_data() {
+    use dsmstream::geo::GeoTransform;
     use dsmstream::geotiff::writer::{write_geotiff_f32, CogOptions};
-    use dsmstream::raster::GeoTransform;
     let dir = tempfile::tempdir().unwrap();
     // a: 64 x 64 px of sloped ground; b: shifted 32 px east, its western
     // half (the part over a) no-data, so the footprints overlap but no pixel.
@@ -255,7 +255,7 @@ fn full_graph_beats_the_spanning_tree_on_a_grid_of_sixteen() {
         summary.weights,
         Some(dsmstream::graph::Weighting::Information)
     );
-    // measured 2026-11-22 (tools/align_accuracy.sh): full (information) worst
+    // measured 2026-11-22 (tools/scripts/align_accuracy.sh): full (information) worst
     // 0.251 m / 0.069 deg, 1 edge dropped; mst 0.669 m / 0.226 deg; paper
     // 0.417 m / 0.167 deg, 12 dropped.
     assert!(
@@ -284,7 +284,7 @@ fn full_graph_beats_the_spanning_tree_on_a_chain_of_twelve() {
     );
     let runs = align_variants(dir.path(), &store, &[&["--graph", "mst"]]);
     let [full, mst] = [0, 1].map(|k| truth.pairwise_error(&runs[k].0));
-    // measured 2026-11-22 (tools/align_accuracy.sh): full worst 0.807 m /
+    // measured 2026-11-22 (tools/scripts/align_accuracy.sh): full worst 0.807 m /
     // 0.126 deg, nothing dropped; mst 1.420 m / 0.195 deg. 2026-12-02, with the
     // global search and degeneracy holding in ICP: full 0.9995 m / 0.1515 deg
     // (`dsmgen score`): the 20 % pair tile_08 -> tile_10 now ends `converged`

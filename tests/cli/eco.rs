@@ -185,9 +185,9 @@ fn fuse_keeps_an_existing_output_unless_forced() {
 
 #[test]
 fn per_dsm_outputs_sit_on_the_mosaic_lattice() {
+    use dsmstream::geo::GeoTransform;
     use dsmstream::geotiff::reader::GeoTiffReader;
     use dsmstream::geotiff::writer::{write_geotiff_f32, CogOptions};
-    use dsmstream::raster::GeoTransform;
     use dsmstream::synth::output::epsg_crs;
     // A 0.5 m DSM and an overlapping 1 m DSM whose origin is 0.3 m off the
     // 0.5 m lattice, both without a pose.
@@ -268,8 +268,8 @@ fn ingest_reads_an_input_list_file() {
 
 #[test]
 fn ingest_reports_a_mixed_vertical_reference() {
+    use dsmstream::geo::{Crs, GeoTransform};
     use dsmstream::geotiff::writer::{write_geotiff_f32, CogOptions};
-    use dsmstream::raster::{Crs, GeoTransform};
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("in");
     std::fs::create_dir(&data).unwrap();

@@ -6,9 +6,9 @@ use std::path::{Path, PathBuf};
 use std::process::Output;
 
 use dsmstream::eval::{diff_stats, DiffStats};
+use dsmstream::geo::{Crs, GeoTransform};
 use dsmstream::geotiff::reader::GeoTiffReader;
 use dsmstream::geotiff::writer::{write_geotiff_f32, CogOptions};
-use dsmstream::raster::{Crs, GeoTransform};
 use dsmstream::synth::output::{epsg_crs, write_truth_grid, Truth};
 use serde_json::{json, Value};
 

@@ -14,7 +14,7 @@ mod score;
 use std::path::PathBuf;
 
 use clap::{Parser, Subcommand, ValueEnum};
-use dsmstream::raster::GeoTransform;
+use dsmstream::geo::GeoTransform;
 use dsmstream::synth::{
     cut_collection, epsg_crs, render_window, tiles::rigid_about, write_raster, write_tile_set,
     write_truth_grid, CutParams, Layout, PixelEffects, Rendering, Surface, SurfaceParams,

@@ -338,8 +338,8 @@ pub(super) fn parse<R: Read + Seek>(
 }
 
 struct Georeferencing {
-    geotransform: crate::raster::GeoTransform,
-    crs: crate::raster::Crs,
+    geotransform: crate::geo::GeoTransform,
+    crs: crate::geo::Crs,
     pixel_is_point: bool,
 }
 

@@ -6,7 +6,7 @@
 //! the values, so the writer can lay out every IFD first, then compute the final
 //! tile offsets, then serialise again with the real values.
 
-use crate::raster::{Crs, GeoTransform};
+use crate::geo::{Crs, GeoTransform};
 
 /// TIFF field types used here.
 #[derive(Clone, Debug)]

@@ -21,7 +21,7 @@ use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use crate::raster::{Crs, GeoTransform};
+use crate::geo::{Crs, GeoTransform};
 use assemble::{build_overview, write_cog, Level, SpillRef};
 
 /// How to write the COG. `nodata` is written as GDAL_NODATA; NaN input pixels

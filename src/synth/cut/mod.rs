@@ -33,9 +33,9 @@ use source::{render_cut_window, SourceRows};
 use super::output::{write_truth, Truth, TruthTile};
 use super::tiles::{draw_perturbation, rigid_about, Layout, TileSpec};
 use super::SynthError;
+use crate::geo::GeoTransform;
 use crate::geotiff::reader::{GeoTiffInfo, GeoTiffReader};
 use crate::geotiff::writer::{CogOptions, CogWriter};
-use crate::raster::GeoTransform;
 use crate::rng::derive_seed;
 
 /// How to cut: layout, tile size, overlap and the perturbation limits.

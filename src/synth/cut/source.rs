@@ -4,8 +4,8 @@
 //! pixels through M ([`render_cut_window`]).
 
 use super::{SourceScan, TileSpec};
+use crate::geo::GeoTransform;
 use crate::geotiff::reader::GeoTiffReader;
-use crate::raster::GeoTransform;
 use crate::synth::tiles::solve_written_height;
 use crate::synth::SynthError;
 

@@ -2,9 +2,9 @@
 //! exact translation, rotation mapped back onto the source, refusals.
 
 use super::*;
+use crate::geo::Crs;
 use crate::geotiff::writer::write_geotiff_f32;
 use crate::poses::{GaugeLabel, GraphKind, PoseEntry, PosesFile};
-use crate::raster::Crs;
 use crate::synth::epsg_crs;
 
 const W: u64 = 120;

@@ -3,8 +3,8 @@
 
 use super::*;
 use crate::coarse::cost::{sample_box, score_shift};
+use crate::geo::GeoTransform;
 use crate::grid::MemGrid;
-use crate::raster::GeoTransform;
 use crate::synth::objects::ObjectParams;
 use crate::synth::surface::SurfaceParams;
 use crate::synth::tiles::{render_window, rigid_about, PixelEffects};

@@ -25,7 +25,7 @@ use serde::{Deserialize, Serialize};
 
 use super::render::{render_points, Rendering};
 use super::surface::{Sampler, Surface};
-use crate::raster::GeoTransform;
+use crate::geo::GeoTransform;
 use crate::rng::{derive_seed, hash2, unit_f64, SplitMix64};
 
 /// Void patches are discs centred in cells of this many pixels.

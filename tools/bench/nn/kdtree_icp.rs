@@ -42,8 +42,8 @@ pub fn queries<R: Pyramid, M: Pyramid>(
     moving: &M,
     config: &IcpConfig,
 ) -> Result<Queries, String> {
-    let ref0 = reference.open_level(0)?;
-    let mut mov0 = moving.open_level(0)?;
+    let ref0 = reference.open_level(0).map_err(|e| e.to_string())?;
+    let mut mov0 = moving.open_level(0).map_err(|e| e.to_string())?;
     let extent = |g: &dyn Grid| g.geotransform().extent(g.width() as u64, g.height() as u64);
     let overlap = extent(&ref0)
         .intersection(&extent(&mov0))
@@ -256,9 +256,9 @@ fn tukey(mut corrs: Vec<Correspondence>) -> Vec<Correspondence> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use dsmstream::geo::GeoTransform;
     use dsmstream::grid::MemGrid;
     use dsmstream::nn::{nearest, NnStats};
-    use dsmstream::raster::GeoTransform;
     use dsmstream::rng::SplitMix64;
 
     /// A rough DSM with walls and no-data holes.
