@@ -1,4 +1,4 @@
-//! Synthetic pose graphs with known truth, for tests and `tools/bench_averaging.rs`:
+//! Synthetic pose graphs with known truth, for tests and `tools/bench/averaging.rs`:
 //! tiny random rotations and metre-scale translations (as between real DSMs), edges
 //! laid out as a chain, a tile grid or a random graph, relative poses with Gaussian
 //! noise (optionally of a different size on each edge, and about a point away from

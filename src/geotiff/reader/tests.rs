@@ -1,5 +1,5 @@
 //! Reader tests against GDAL's answers in fixtures/geotiff/expected.json
-//! (written by tools/make_test_tiffs.py): every fixture's metadata and pixels,
+//! (written by tools/scripts/make_test_tiffs.py): every fixture's metadata and pixels,
 //! every refused file's error, truncated copies, and row-range reads.
 
 use std::path::{Path, PathBuf};
@@ -346,7 +346,7 @@ fn real_rasters_match_gdal() {
 }
 
 /// Throughput of a top-to-bottom streaming read of a large file (not run by
-/// default). Make the file and time GDAL with tools/bench_geotiff_read.py, then:
+/// default). Make the file and time GDAL with tools/scripts/bench_geotiff_read.py, then:
 /// `DSMSTREAM_BENCH_TIFF=/tmp/big.tif cargo test --release --lib bench_streaming_read -- --ignored --nocapture`
 #[test]
 #[ignore]
