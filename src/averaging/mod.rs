@@ -14,6 +14,7 @@
 
 mod block;
 mod cg;
+mod consistency;
 mod covariance;
 mod gauge;
 mod informed;
