@@ -204,6 +204,8 @@ fn fuse_and_eval(
         method: FuseMethod::Median,
         per_dsm: None,
         force: true,
+        bounds: None,
+        nodata: None,
         resources: ResourceArgs::default(),
     })?;
     emit_line(&format!(

@@ -9,11 +9,14 @@
 //! [`CogWriter`] in that same order, so the file does not depend on the thread
 //! count and memory is the cache budget plus a few tiles per thread.
 //! `fuse_per_dsm` writes each corrected DSM alone on its own extent, on the
-//! mosaic's cell and lattice.
+//! mosaic's cell and lattice. With `bounds`, every raster covers exactly that
+//! box (snapped outward to the lattice); [`output`] says what each file holds
+//! (sample type, no-data, band description and unit).
 
 pub mod corrected;
 pub mod layout;
 pub mod limits;
+pub mod output;
 pub mod pose_set;
 pub mod render;
 
@@ -23,7 +26,7 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use crate::cache::{CacheStats, ChunkCache};
-use crate::geotiff::writer::{CogOptions, CogWriter, GeoTiffWriteError};
+use crate::geotiff::writer::{CogWriter, GeoTiffWriteError};
 use crate::poses::PosesError;
 use crate::raster::GeoTransform;
 use crate::store::{Store, StoreError};
@@ -104,6 +107,12 @@ pub struct FuseConfig {
     pub method: FuseMethod,
     pub threads: usize,
     pub tile_size: u32,
+    /// Output extent [xmin, ymin, xmax, ymax] in CRS units, snapped outward to
+    /// the mosaic's lattice; None = the union of the corrected footprints
+    /// (the mosaic) or the DSM's own corrected footprint (per-DSM outputs).
+    pub bounds: Option<[f64; 4]>,
+    /// No-data value of Float32 outputs (count outputs have none).
+    pub nodata: f32,
 }
 
 impl Default for FuseConfig {
@@ -113,6 +122,8 @@ impl Default for FuseConfig {
             method: FuseMethod::Median,
             threads: 1,
             tile_size: TILE_SIZE,
+            bounds: None,
+            nodata: f32::NAN,
         }
     }
 }
@@ -145,6 +156,7 @@ pub fn fuse(
     progress: Progress,
 ) -> Result<FuseReport, FuseError> {
     let all: Vec<usize> = (0..store.dsms().len()).collect();
+    check_bounds_meet_data(store, poses, config)?;
     write_raster(
         store,
         cache,
@@ -153,6 +165,7 @@ pub fn fuse(
         Which {
             dsms: &all,
             lattice: &all,
+            per_dsm: false,
         },
         out,
         progress,
@@ -170,6 +183,7 @@ pub fn fuse_per_dsm(
     dir: &Path,
     progress: Progress,
 ) -> Result<Vec<FuseReport>, FuseError> {
+    check_bounds_meet_data(store, poses, config)?;
     std::fs::create_dir_all(dir).map_err(|source| FuseError::Io {
         path: dir.to_path_buf(),
         action: "creating folder",
@@ -187,6 +201,7 @@ pub fn fuse_per_dsm(
             Which {
                 dsms: &[index],
                 lattice: &all,
+                per_dsm: true,
             },
             &path,
             progress,
@@ -233,11 +248,41 @@ pub fn plan_grid_on(
     Some((grid, placed))
 }
 
+/// Refuse bad options, and `bounds` that meet none of the corrected DSMs.
+fn check_bounds_meet_data(
+    store: &Store,
+    poses: &PoseSet,
+    config: &FuseConfig,
+) -> Result<(), FuseError> {
+    output::check_options(config)?;
+    let Some(b) = config.bounds else {
+        return Ok(());
+    };
+    let all: Vec<usize> = (0..store.dsms().len()).collect();
+    if let Some((grid, placed)) = plan_grid(store, poses, &all, config.gsd_m) {
+        if !placed
+            .iter()
+            .any(|p| output::overlaps(p.corrected_bounds, b))
+        {
+            let g = grid.geotransform.0;
+            let x1 = g[0] + grid.width as f64 * grid.gsd_m();
+            let y0 = g[3] - grid.height as f64 * grid.gsd_m();
+            return Err(FuseError::Input(format!(
+                "--bounds {} {} {} {} meet no DSM (the corrected DSMs cover {} {y0} {x1} {})",
+                b[0], b[1], b[2], b[3], g[0], g[3]
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// The DSMs a raster holds, and those whose finest cell sets its lattice.
 #[derive(Clone, Copy)]
 struct Which<'a> {
     dsms: &'a [usize],
     lattice: &'a [usize],
+    /// One DSM's own file (its id goes in the metadata).
+    per_dsm: bool,
 }
 
 fn write_raster(
@@ -249,7 +294,12 @@ fn write_raster(
     out: &Path,
     progress: Progress,
 ) -> Result<FuseReport, FuseError> {
-    let Which { dsms, lattice } = which;
+    let Which {
+        dsms,
+        lattice,
+        per_dsm,
+    } = which;
+    output::check_options(config)?;
     if let Some(g) = config.gsd_m {
         if !(g.is_finite() && g > 0.0) {
             return Err(FuseError::Input(format!(
@@ -265,19 +315,19 @@ fn write_raster(
                 store.root().display()
             ))
         })?;
+    let grid = output::extent(grid, config.bounds);
     limits::check_mosaic(store, poses, &placed, &grid, cache.budget_bytes())?;
     let removed = crate::atomic::remove_stale_siblings(out, &[".spill-", ".tmp-"]);
     if removed > 0 {
         tracing::warn!(path = %out.display(), removed, "temporaries of killed runs removed");
     }
     let crs = store.crs().cloned().unwrap_or_default();
-    let options = CogOptions {
-        tile_size: config.tile_size,
-        geotransform: grid.geotransform,
-        crs,
-        nodata: f32::NAN,
-        overviews: true,
+    let content = output::RasterContent {
+        method: config.method,
+        dsm_id: per_dsm.then(|| store.dsms()[dsms[0]].id.as_str()),
+        poses: &poses.label(),
     };
+    let options = output::cog_options(config, &grid, crs, content);
     let mut writer = CogWriter::create(out, grid.width, grid.height, options)?;
     let renderer = TileRenderer::new(
         store,
