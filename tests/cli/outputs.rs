@@ -187,3 +187,95 @@ fn bad_bounds_and_nodata_are_refused_with_one_line() {
         assert!(!out.exists(), "{extra:?} wrote a file");
     }
 }
+
+/// A VRT of chain4's tile_00 and tile_01 (0.5 m, tile_01 102 px east) by hand,
+/// as gdalbuildvrt writes it.
+fn chain_vrt(dir: &Path, extra_source: &str) -> PathBuf {
+    let tiles = fixtures().join("synth/chain4");
+    let source = |kind: &str, name: &str, x_off: u32, extra: &str| {
+        format!(
+            r#"    <{kind}>
+      <SourceFilename relativeToVRT="0">{}</SourceFilename>
+      <SourceBand>1</SourceBand>
+      <SourceProperties RasterXSize="256" RasterYSize="256" DataType="Float32" BlockXSize="256" BlockYSize="256" />
+      <SrcRect xOff="0" yOff="0" xSize="256" ySize="256" />
+      <DstRect xOff="{x_off}" yOff="0" xSize="256" ySize="256" />{extra}
+    </{kind}>
+"#,
+            tiles.join(name).display()
+        )
+    };
+    let text = format!(
+        r#"<VRTDataset rasterXSize="358" rasterYSize="256">
+  <SRS dataAxisToSRSAxisMapping="1,2">EPSG:32617</SRS>
+  <GeoTransform>  5.0000000000000000e+05,  5.0000000000000000e-01,  0.0000000000000000e+00,  4.8000000000000000e+06,  0.0000000000000000e+00, -5.0000000000000000e-01</GeoTransform>
+  <VRTRasterBand dataType="Float32" band="1">
+    <NoDataValue>nan</NoDataValue>
+    <ColorInterp>Gray</ColorInterp>
+{}{}  </VRTRasterBand>
+</VRTDataset>
+"#,
+        source(
+            "ComplexSource",
+            "tile_00.tif",
+            0,
+            "\n      <NODATA>nan</NODATA>"
+        ),
+        source("ComplexSource", "tile_01.tif", 102, extra_source)
+    );
+    let path = dir.join("pair.vrt");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+#[test]
+fn a_vrt_mosaic_is_ingested_as_one_dsm_equal_to_its_sources() {
+    let dir = tempfile::tempdir().unwrap();
+    let vrt = chain_vrt(dir.path(), "");
+    let store = dir.path().join("v.zarr");
+    let out = ok(run(&[&"ingest", &vrt, &"--store", &store]));
+    let stdout = text(&out.stdout);
+    assert!(stdout.contains("ingested pair: 358 x 256 px"), "{stdout}");
+    let per = dir.path().join("per");
+    ok(run(&[&"fuse", &store, &"--per-dsm", &per]));
+    let (r, got) = read(&per.join("pair.tif"));
+    assert_eq!(
+        r.info().geotransform.0,
+        [500_000.0, 0.5, 0.0, 4_800_000.0, 0.0, -0.5]
+    );
+    assert_eq!((r.info().width, r.info().height), (358, 256));
+    // the mosaic of the sources: tile_01 over tile_00 where it is valid
+    let mut want = vec![f32::NAN; 358 * 256];
+    for (name, x_off) in [("tile_00.tif", 0usize), ("tile_01.tif", 102)] {
+        let (_, px) = read(&fixtures().join("synth/chain4").join(name));
+        for row in 0..256 {
+            for col in 0..256 {
+                let v = px[row * 256 + col];
+                if !v.is_nan() {
+                    want[row * 358 + x_off + col] = v;
+                }
+            }
+        }
+    }
+    let differing = got
+        .iter()
+        .zip(&want)
+        .filter(|(a, b)| !same(**a, **b))
+        .count();
+    assert_eq!(differing, 0, "ingested VRT differs from its sources");
+    assert!(want.iter().filter(|v| v.is_nan()).count() < 358 * 256 / 10);
+}
+
+#[test]
+fn a_vrt_that_scales_is_refused_with_one_line_naming_file_and_element() {
+    let dir = tempfile::tempdir().unwrap();
+    let vrt = chain_vrt(dir.path(), "\n      <ScaleRatio>0.3048</ScaleRatio>");
+    let store = dir.path().join("v.zarr");
+    let o = run(&[&"ingest", &vrt, &"--store", &store]);
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "{err}");
+    assert!(err.contains("pair.vrt"), "{err}");
+    assert!(err.contains("<ScaleRatio> inside <ComplexSource>"), "{err}");
+    assert!(!store.join("pair").exists());
+}
