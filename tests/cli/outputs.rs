@@ -279,3 +279,59 @@ fn a_vrt_that_scales_is_refused_with_one_line_naming_file_and_element() {
     assert!(err.contains("<ScaleRatio> inside <ComplexSource>"), "{err}");
     assert!(!store.join("pair").exists());
 }
+
+/// Names of leftover demo work folders in `tmp`.
+fn demo_leftovers(tmp: &Path) -> Vec<String> {
+    std::fs::read_dir(tmp)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with("dsmstream-demo-"))
+        .collect()
+}
+
+#[test]
+fn a_failed_demo_removes_its_temporary_folder() {
+    let tmp = tempfile::tempdir().unwrap();
+    let empty = tmp.path().join("empty");
+    std::fs::create_dir(&empty).unwrap();
+    let o = bin()
+        .current_dir(tmp.path())
+        .env("TMPDIR", tmp.path())
+        .args(["demo", "--data"])
+        .arg(&empty)
+        .output()
+        .unwrap();
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("no .tif or .tiff files"), "{err}");
+    assert_eq!(demo_leftovers(tmp.path()), Vec::<String>::new());
+}
+
+/// The demo run from a folder that is not the repository (the fixtures are
+/// found above the binary), ending with one conclusion line per part, its
+/// temporary folder gone.
+#[test]
+#[ignore = "align writes a non-finite matrix_world on chain4 at a3be86f (reported to the lead); run with --ignored once fixed"]
+fn demo_runs_from_any_directory_concludes_each_part_and_cleans_up() {
+    let tmp = tempfile::tempdir().unwrap();
+    let o = bin()
+        .current_dir(tmp.path())
+        .env("TMPDIR", tmp.path())
+        .arg("demo")
+        .output()
+        .unwrap();
+    let out = text(&o.stdout);
+    assert!(o.status.success(), "{}\n{out}", text(&o.stderr));
+    assert_eq!(out.matches("\nconclusion (").count(), 2, "{out}");
+    for part in ["ingest: ", "align: ", "fuse: ", "eval: "] {
+        assert_eq!(
+            out.matches(&format!("\n  {part}")).count(),
+            2,
+            "{part}: {out}"
+        );
+    }
+    assert!(out.contains("-> the collection agrees"), "{out}");
+    assert!(out.contains("demo finished in "), "{out}");
+    assert_eq!(demo_leftovers(tmp.path()), Vec::<String>::new());
+}
