@@ -21,6 +21,7 @@ use anyhow::Context;
 use dsmstream::cache::ChunkCache;
 use dsmstream::eval::{evaluate, EvalConfig};
 use dsmstream::fuse::{fuse, FuseConfig, FuseMethod, PoseSet};
+use dsmstream::plots::write_eval_plots;
 use dsmstream::poses::{inverse_rigid, rigid, to_local, to_world, PosesFile};
 use dsmstream::store::ingest::NoProgress;
 use dsmstream::store::{ingest, IngestOptions, StorageSettings, Store};
@@ -30,10 +31,10 @@ use dsmstream::synth::tiles::Layout;
 use dsmstream::InputError;
 use nalgebra::{Matrix3, Matrix4, Vector3};
 
+use super::align;
 use super::align::{GraphArg, WeightsArg};
 use super::common::{all_cores, emit_line, ResourceArgs};
 use super::icp_args::IcpArgs;
-use super::{align, eval};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -234,22 +235,7 @@ fn fuse_and_eval(
         let out = work.join("fused_full.tif");
         fuse(&store, &cache, &poses, &config, &out, &|_, _| {})?
     };
-    emit_line(&format!(
-        "\n== eval --poses poses_full_truth_gauge.json --reference {} --plots plots",
-        truth_tif.display()
-    ))?;
     let eval_defaults = EvalConfig::default();
-    eval::run(eval::Args {
-        store: store_path.to_path_buf(),
-        poses: Some(gauged[0].1.clone()),
-        tau: eval_defaults.tau_m,
-        reference: Some(truth_tif.clone()),
-        json: false,
-        plots: Some(work.join("plots")),
-        max_samples: eval_defaults.max_samples,
-        all_returns: eval_defaults.all_returns,
-        resources: ResourceArgs::default(),
-    })?;
     let cache = ChunkCache::new(64 << 20);
     let config = EvalConfig {
         threads: all_cores(),
@@ -286,9 +272,11 @@ fn fuse_and_eval(
         "truth",
         Some(PoseSet::from_parsed(&store, &truth_json, truth_file)?),
     ));
+    let plots = work.join("plots");
     let mut fused_rmse = std::collections::HashMap::new();
     for (name, poses) in &sets {
-        let (report, _) = evaluate(&store, &cache, poses.as_ref(), Some(&truth_tif), &config)?;
+        let (report, plot_data) =
+            evaluate(&store, &cache, poses.as_ref(), Some(&truth_tif), &config)?;
         let pairs = report.mean_after.or(report.mean_before).unwrap_or_default();
         let r = report.reference.as_ref().expect("reference given");
         let f = r.after.unwrap_or(r.before);
@@ -297,7 +285,15 @@ fn fuse_and_eval(
             pairs.rmse_tau_m, pairs.nmad_m, f.rmse_tau_m, f.nmad_m, f.median_m
         ))?;
         fused_rmse.insert(*name, f.rmse_tau_m);
+        if *name == "full" {
+            // the pictures `eval --plots` draws, for the gauged full-graph poses
+            write_eval_plots(&plots, &store, poses.as_ref(), &report, &plot_data)?;
+        }
     }
+    emit_line(&format!(
+        "plots of the full-graph result (scene graph, histograms, difference map) in {}",
+        plots.display()
+    ))?;
     Ok([
         conclusion::fuse_line(&fused),
         conclusion::eval_line(fused_rmse["full"], fused_rmse["none"]),
