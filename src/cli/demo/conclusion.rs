@@ -33,11 +33,20 @@ pub fn align_line(pairs: usize, full: &PairwiseError, mst: &PairwiseError) -> St
         )
     };
     format!(
-        "align: {pairs} pairs, worst pairwise error vs truth {:.1} cm, {:.4} deg (spanning tree {:.1} cm) -> {verdict}",
-        100.0 * full.worst_m,
+        "align: {pairs} pairs, worst pairwise error vs truth {}, {:.4} deg (spanning tree {}) -> {verdict}",
+        length(full.worst_m),
         full.worst_deg,
-        100.0 * mst.worst_m,
+        length(mst.worst_m),
     )
+}
+
+/// A length in cm below a metre, else in m.
+fn length(m: f64) -> String {
+    if m.abs() < 1.0 {
+        format!("{:.1} cm", 100.0 * m)
+    } else {
+        format!("{m:.2} m")
+    }
 }
 
 /// `fuse: 562 x 256 px at 0.5 m, 97.3% valid -> fused_full.tif`.
@@ -103,7 +112,9 @@ mod tests {
         let good = align_line(5, &err(0.031), &err(0.072));
         assert!(good.starts_with("align: 5 pairs, worst pairwise error vs truth 3.1 cm"));
         assert!(good.ends_with("(spanning tree 7.2 cm) -> the collection agrees"));
-        assert!(align_line(5, &err(0.4), &err(0.5)).contains("off by more than 10 cm"));
+        let bad = align_line(5, &err(68.28), &err(0.5));
+        assert!(bad.contains("vs truth 68.28 m, 0.0010 deg (spanning tree 50.0 cm)"), "{bad}");
+        assert!(bad.contains("off by more than 10 cm"));
         assert_eq!(
             eval_line(0.032, 1.899),
             "eval: fused vs truth rmse_tau 0.032 m (uncorrected 1.899 m) -> registration removed 98% of the misfit"
