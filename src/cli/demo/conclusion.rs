@@ -113,7 +113,10 @@ mod tests {
         assert!(good.starts_with("align: 5 pairs, worst pairwise error vs truth 3.1 cm"));
         assert!(good.ends_with("(spanning tree 7.2 cm) -> the collection agrees"));
         let bad = align_line(5, &err(68.28), &err(0.5));
-        assert!(bad.contains("vs truth 68.28 m, 0.0010 deg (spanning tree 50.0 cm)"), "{bad}");
+        assert!(
+            bad.contains("vs truth 68.28 m, 0.0010 deg (spanning tree 50.0 cm)"),
+            "{bad}"
+        );
         assert!(bad.contains("off by more than 10 cm"));
         assert_eq!(
             eval_line(0.032, 1.899),
