@@ -12,12 +12,12 @@
 //! order, a later source's valid pixels overwrite earlier ones; no-data (the
 //! source's own, a ComplexSource's `NODATA`, the band's `NoDataValue`) never
 //! overwrites. Rows are read from each source only where its `DstRect` meets
-//! the requested rows, so memory stays a block row per source.
+//! the requested rows, so memory stays a block row per source (each source
+//! is a [`GeoTiffSource`], which maps its file afresh as it streams).
 
 use std::path::{Path, PathBuf};
 
-use super::source::{open_geotiff, RowSource, SourceError, SourceRaster};
-use crate::geotiff::reader::GeoTiffReader;
+use super::source::{open_geotiff, GeoTiffSource, RowSource, SourceError, SourceRaster};
 use crate::raster::{Crs, GeoTransform};
 
 mod xml;
@@ -50,7 +50,7 @@ pub struct PixelRect {
 /// One GeoTIFF placed in the mosaic.
 pub struct PlacedSource {
     pub path: PathBuf,
-    reader: GeoTiffReader,
+    reader: GeoTiffSource,
     pub src: PixelRect,
     pub dst: PixelRect,
     /// A ComplexSource's `NODATA`: source pixels equal to it are no-data.
@@ -88,7 +88,7 @@ impl VrtSource {
         let first = sources
             .first()
             .ok_or_else(|| refuse(path, "<VRTRasterBand> has no source"))?;
-        let crs = first.reader.info().crs.clone();
+        let crs = first.reader.raster().crs.clone();
         check_same_crs(path, &crs, &sources)?;
         let raster = SourceRaster {
             path: path.to_path_buf(),
@@ -96,7 +96,7 @@ impl VrtSource {
             height: spec.height,
             geotransform: spec.geotransform,
             crs,
-            nodata: spec.band_nodata.or(first.reader.info().nodata),
+            nodata: spec.band_nodata.or(first.reader.raster().nodata),
             dtype: spec.data_type,
         };
         Ok(VrtSource {
@@ -377,9 +377,11 @@ fn open_placed(
     gt: &GeoTransform,
 ) -> Result<PlacedSource, SourceError> {
     let name = spec.path.display().to_string();
-    let reader = GeoTiffReader::open(&spec.path)
-        .map_err(|e| refuse(vrt, format!("<{}> {name}: {e}", spec.kind)))?;
-    let info = reader.info();
+    let reader = GeoTiffSource::open(&spec.path).map_err(|e| SourceError {
+        message: format!("{}: <{}> {}", vrt.display(), spec.kind, e.message),
+        bad_input: e.bad_input,
+    })?;
+    let info = reader.raster();
     let g = info.geotransform.0;
     let same = |a: f64, b: f64| (a - b).abs() <= GSD_TOLERANCE * b.abs();
     if !same(g[1], gt.0[1]) || !same(g[5], gt.0[5]) {
@@ -406,13 +408,13 @@ fn open_placed(
 }
 
 fn check_same_crs(vrt: &Path, crs: &Crs, sources: &[PlacedSource]) -> Result<(), SourceError> {
-    match sources.iter().find(|s| !s.reader.info().crs.same_as(crs)) {
+    match sources.iter().find(|s| !s.reader.raster().crs.same_as(crs)) {
         Some(s) => Err(refuse(
             vrt,
             format!(
                 "<SourceFilename> {}: CRS {} differs from {} of {} (one CRS per VRT)",
                 s.path.display(),
-                s.reader.info().crs.label(),
+                s.reader.raster().crs.label(),
                 crs.label(),
                 sources[0].path.display()
             ),
@@ -452,7 +454,7 @@ fn paste_source(
     width: usize,
     out: &mut [f32],
 ) -> Result<(), SourceError> {
-    let info = s.reader.info();
+    let info = s.reader.raster();
     let (src_w, src_h) = (info.width as i64, info.height as i64);
     // destination rows and columns this source may write, clipped to the VRT,
     // the requested rows and the source raster
@@ -473,8 +475,8 @@ fn paste_source(
         .reader
         .read_rows((r_lo + dy) as u64, (r_hi - r_lo) as u64)
         .map_err(|e| SourceError {
-            message: format!("{}: {e}", vrt.display()),
-            bad_input: e.is_bad_input(),
+            message: format!("{}: {}", vrt.display(), e.message),
+            bad_input: e.bad_input,
         })?;
     let nodata = s.nodata.filter(|v| !v.is_nan());
     for r in r_lo..r_hi {

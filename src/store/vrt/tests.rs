@@ -151,12 +151,14 @@ fn anything_but_a_plain_mosaic_is_refused_naming_the_element() {
     let half = plain.replace(r#"<DstRect xOff="0""#, r#"<DstRect xOff="0.5""#);
     let vsi = plain.replace(">a.tif<", ">/vsizip/x.zip/a.tif<");
     let band2 = plain.replace("<SourceBand>1<", "<SourceBand>2<");
+    let missing = plain.replace(">a.tif<", ">missing.tif<");
     let cases: Vec<(Vec<String>, &str, &str)> = vec![
         (vec![scaled], "", "<ScaleRatio> inside <ComplexSource>"),
         (vec![resampled], "", "resampling"),
         (vec![half], "", "<DstRect xOff=\"0.5\">"),
         (vec![vsi], "", "/vsizip/x.zip/a.tif: only plain GeoTIFF"),
         (vec![band2], "", "only band 1"),
+        (vec![missing], "", "<SimpleSource> "),
         (
             vec![plain.replace("SimpleSource", "AveragedSource")],
             "",
