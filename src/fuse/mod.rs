@@ -156,7 +156,7 @@ pub fn fuse(
     progress: Progress,
 ) -> Result<FuseReport, FuseError> {
     let all: Vec<usize> = (0..store.dsms().len()).collect();
-    check_bounds_meet_data(store, poses, config)?;
+    output::check_bounds_meet_data(store, poses, config)?;
     write_raster(
         store,
         cache,
@@ -183,7 +183,7 @@ pub fn fuse_per_dsm(
     dir: &Path,
     progress: Progress,
 ) -> Result<Vec<FuseReport>, FuseError> {
-    check_bounds_meet_data(store, poses, config)?;
+    output::check_bounds_meet_data(store, poses, config)?;
     std::fs::create_dir_all(dir).map_err(|source| FuseError::Io {
         path: dir.to_path_buf(),
         action: "creating folder",
@@ -246,34 +246,6 @@ pub fn plan_grid_on(
     let (finest, anchor) = layout::finest_lattice(store, lattice)?;
     let grid = OutputGrid::covering(bounds, gsd_m.unwrap_or(finest), anchor);
     Some((grid, placed))
-}
-
-/// Refuse bad options, and `bounds` that meet none of the corrected DSMs.
-fn check_bounds_meet_data(
-    store: &Store,
-    poses: &PoseSet,
-    config: &FuseConfig,
-) -> Result<(), FuseError> {
-    output::check_options(config)?;
-    let Some(b) = config.bounds else {
-        return Ok(());
-    };
-    let all: Vec<usize> = (0..store.dsms().len()).collect();
-    if let Some((grid, placed)) = plan_grid(store, poses, &all, config.gsd_m) {
-        if !placed
-            .iter()
-            .any(|p| output::overlaps(p.corrected_bounds, b))
-        {
-            let g = grid.geotransform.0;
-            let x1 = g[0] + grid.width as f64 * grid.gsd_m();
-            let y0 = g[3] - grid.height as f64 * grid.gsd_m();
-            return Err(FuseError::Input(format!(
-                "--bounds {} {} {} {} meet no DSM (the corrected DSMs cover {} {y0} {x1} {})",
-                b[0], b[1], b[2], b[3], g[0], g[3]
-            )));
-        }
-    }
-    Ok(())
 }
 
 /// The DSMs a raster holds, and those whose finest cell sets its lattice.

@@ -6,9 +6,10 @@
 //! `--bounds` snapped outward to the mosaic's lattice (as `gdalwarp -tap -te`).
 
 use super::layout::OutputGrid;
-use super::{FuseConfig, FuseError, FuseMethod};
+use super::{FuseConfig, FuseError, FuseMethod, PoseSet};
 use crate::geotiff::writer::{CogOptions, CogSample, GdalMetadata};
 use crate::raster::Crs;
+use crate::store::Store;
 
 /// Unit of heights and height differences: the store's heights are metres.
 pub const HEIGHT_UNIT: &str = "m";
@@ -132,6 +133,31 @@ pub fn extent(grid: OutputGrid, bounds: Option<[f64; 4]>) -> OutputGrid {
 /// True when [xmin, ymin, xmax, ymax] boxes share some area.
 pub fn overlaps(a: [f64; 4], b: [f64; 4]) -> bool {
     a[0] < b[2] && b[0] < a[2] && a[1] < b[3] && b[1] < a[3]
+}
+
+/// Refuse bad options, and `bounds` that meet none of the corrected DSMs.
+pub fn check_bounds_meet_data(
+    store: &Store,
+    poses: &PoseSet,
+    config: &FuseConfig,
+) -> Result<(), FuseError> {
+    check_options(config)?;
+    let Some(b) = config.bounds else {
+        return Ok(());
+    };
+    let all: Vec<usize> = (0..store.dsms().len()).collect();
+    if let Some((grid, placed)) = super::plan_grid(store, poses, &all, config.gsd_m) {
+        if !placed.iter().any(|p| overlaps(p.corrected_bounds, b)) {
+            let g = grid.geotransform.0;
+            let x1 = g[0] + grid.width as f64 * grid.gsd_m();
+            let y0 = g[3] - grid.height as f64 * grid.gsd_m();
+            return Err(FuseError::Input(format!(
+                "--bounds {} {} {} {} meet no DSM (the corrected DSMs cover {} {y0} {x1} {})",
+                b[0], b[1], b[2], b[3], g[0], g[3]
+            )));
+        }
+    }
+    Ok(())
 }
 
 #[cfg(test)]
