@@ -297,7 +297,6 @@ fn write_raster(
     let content = output::RasterContent {
         method: config.method,
         dsm_id: per_dsm.then(|| store.dsms()[dsms[0]].id.as_str()),
-        poses: &poses.label(),
     };
     let options = output::cog_options(config, &grid, crs, content);
     let mut writer = CogWriter::create(out, grid.width, grid.height, options)?;

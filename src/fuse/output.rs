@@ -1,7 +1,8 @@
 //! What a fused raster says about itself, so the files stack in a GIS: the
 //! sample type (heights Float32 with the chosen no-data value; `count` a
 //! UInt16 band with no no-data, 0 meaning no DSM), the band description and
-//! unit GDAL reads (GDAL_METADATA), provenance items (method, poses, DSM id),
+//! unit GDAL reads (GDAL_METADATA), provenance items (method, DSM id; not the
+//! poses file's path: the same poses give the same bytes wherever they came from),
 //! and the output extent: the union of the corrected footprints, or
 //! `--bounds` snapped outward to the mosaic's lattice (as `gdalwarp -tap -te`).
 
@@ -20,8 +21,6 @@ pub struct RasterContent<'a> {
     pub method: FuseMethod,
     /// The DSM of a per-DSM output (None for the mosaic).
     pub dsm_id: Option<&'a str>,
-    /// Where the poses came from (`PoseSet::label`).
-    pub poses: &'a str,
 }
 
 impl FuseMethod {
@@ -66,10 +65,7 @@ impl FuseMethod {
 /// GDAL_METADATA of one output: band description and unit, then provenance.
 pub fn metadata(content: RasterContent<'_>) -> GdalMetadata {
     let method = content.method;
-    let mut items = vec![
-        ("FUSE_METHOD".to_string(), method.name().to_string()),
-        ("POSES".to_string(), content.poses.to_string()),
-    ];
+    let mut items = vec![("FUSE_METHOD".to_string(), method.name().to_string())];
     if let Some(id) = content.dsm_id {
         items.push(("DSM_ID".to_string(), id.to_string()));
     }
@@ -196,7 +192,6 @@ mod tests {
         let m = metadata(RasterContent {
             method: FuseMethod::Count,
             dsm_id: None,
-            poses: "identity",
         });
         assert_eq!(m.band_description.as_deref(), Some("count"));
         assert_eq!(m.band_unit, None);
@@ -204,7 +199,6 @@ mod tests {
         let m = metadata(RasterContent {
             method: FuseMethod::Median,
             dsm_id: Some("tile_00"),
-            poses: "p.json",
         });
         assert_eq!(m.band_unit.as_deref(), Some("m"));
         assert!(m.items.contains(&("DSM_ID".into(), "tile_00".into())));
