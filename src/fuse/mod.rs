@@ -92,7 +92,7 @@ pub enum FuseMethod {
     Mean,
     Min,
     Max,
-    /// Number of DSMs with a valid height (0 where none).
+    /// Number of DSMs with a valid height (0 where none), written as a UInt16 band.
     Count,
     /// Largest minus smallest corrected height where two or more DSMs overlap
     /// (no-data elsewhere): where the registered DSMs still disagree.
