@@ -6,26 +6,35 @@
 //! By default two collections: the generated city chain in
 //! fixtures/synth/chain4, and six tiles cut from the real ttp2015 lidar DSM
 //! with known shifts and rotations (the source DSM is then the truth).
+//! Each collection ends with one conclusion line per part ([`conclusion`]),
+//! the run with its time. The bundled fixtures are found from the current
+//! directory, beside the binary (`target/release/` of a checkout) or in the
+//! source tree it was built from, so the demo runs from any directory; the
+//! work folder is removed at the end unless `--work` names it.
+
+mod conclusion;
 
 use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 use anyhow::Context;
 use dsmstream::cache::ChunkCache;
 use dsmstream::eval::{evaluate, EvalConfig};
-use dsmstream::fuse::FuseMethod;
-use dsmstream::fuse::PoseSet;
+use dsmstream::fuse::{fuse, FuseConfig, FuseMethod, PoseSet};
+use dsmstream::plots::write_eval_plots;
 use dsmstream::poses::{inverse_rigid, rigid, to_local, to_world, PosesFile};
-use dsmstream::store::{StorageSettings, Store};
+use dsmstream::store::ingest::NoProgress;
+use dsmstream::store::{ingest, IngestOptions, StorageSettings, Store};
 use dsmstream::synth::cut::{cut_collection, CutParams};
 use dsmstream::synth::output::{epsg_crs, write_truth_grid, Truth};
 use dsmstream::synth::tiles::Layout;
 use dsmstream::InputError;
 use nalgebra::{Matrix3, Matrix4, Vector3};
 
+use super::align;
 use super::align::{GraphArg, WeightsArg};
 use super::common::{all_cores, emit_line, ResourceArgs};
 use super::icp_args::IcpArgs;
-use super::{align, eval, fuse, ingest};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -43,14 +52,21 @@ pub struct Args {
 const SYNTH_CHAIN: &str = "fixtures/synth/chain4";
 const TTP_SOURCE: &str = "fixtures/real/ttp2015/ttp_dsm_source.tif";
 
-/// A bundled fixture: relative to the current directory when run from the
-/// repository, else relative to the source tree the binary was built from.
-fn fixture(relative: &str) -> PathBuf {
-    let here = PathBuf::from(relative);
-    if here.exists() {
-        return here;
-    }
-    Path::new(env!("CARGO_MANIFEST_DIR")).join(relative)
+/// A bundled fixture: relative to the current directory, to a folder above
+/// the binary (a checkout's `target/release/dsmstream`), or to the source tree
+/// the binary was built from; None when none has it.
+fn fixture(relative: &str) -> Option<PathBuf> {
+    let exe = std::env::current_exe().ok();
+    let beside_binary = exe
+        .iter()
+        .flat_map(|e| e.ancestors().skip(1).take(4))
+        .map(|dir| dir.join(relative));
+    std::iter::once(PathBuf::from(relative))
+        .chain(beside_binary)
+        .chain(std::iter::once(
+            Path::new(env!("CARGO_MANIFEST_DIR")).join(relative),
+        ))
+        .find(|p| p.exists())
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -58,6 +74,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         std::env::temp_dir().join(format!("dsmstream-demo-{}", std::process::id()))
     });
     std::fs::create_dir_all(&work).with_context(|| format!("creating {}", work.display()))?;
+    let started = Instant::now();
     let result = run_in(&args, &work);
     if args.work.is_none() {
         // the temporary folder goes, whatever happened; --work keeps it
@@ -65,23 +82,26 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     } else if result.is_ok() {
         emit_line(&format!("\nfiles in {}", work.display()))?;
     }
-    result
+    result?;
+    emit_line(&format!(
+        "\ndemo finished in {:.1} s",
+        started.elapsed().as_secs_f64()
+    ))?;
+    Ok(())
 }
 
 fn run_in(args: &Args, work: &Path) -> anyhow::Result<()> {
     if let Some(data) = &args.data {
         return run_collection(data, work);
     }
-    let (chain, ttp) = (fixture(SYNTH_CHAIN), fixture(TTP_SOURCE));
-    for path in [&chain, &ttp] {
-        if !path.exists() {
-            return Err(InputError::new(format!(
-                "{}: bundled fixture not found (run from the repository, or give --data)",
-                path.display()
+    let found = |relative: &str| {
+        fixture(relative).ok_or_else(|| {
+            InputError::new(format!(
+                "{relative}: bundled fixture not found here, above the binary or in the source tree it was built from (run from the repository, or give --data DIR)"
             ))
-            .into());
-        }
-    }
+        })
+    };
+    let (chain, ttp) = (found(SYNTH_CHAIN)?, found(TTP_SOURCE)?);
     emit_line(&format!("=== 1. generated city tiles ({SYNTH_CHAIN})"))?;
     run_collection(&chain, &work.join("synth"))?;
     let real = work.join("ttp2015");
@@ -107,14 +127,13 @@ fn run_in(args: &Args, work: &Path) -> anyhow::Result<()> {
 fn run_collection(data_dir: &Path, work: &Path) -> anyhow::Result<()> {
     std::fs::create_dir_all(work).with_context(|| format!("creating {}", work.display()))?;
     let store = work.join("collection.zarr");
-    let storage = StorageSettings::default();
-    ingest::run(ingest::Args {
-        inputs: vec![data_dir.to_path_buf()],
-        store: store.clone(),
-        chunk: storage.chunk,
-        compression: storage.compression,
+    let options = IngestOptions {
+        storage: StorageSettings::default(),
         force: false,
-    })?;
+    };
+    let ingested = ingest(&[data_dir.to_path_buf()], &store, &options, &NoProgress)
+        .map_err(|e| super::common::classify(e, |e| e.is_bad_input()))?;
+    let mut conclusions = vec![conclusion::ingest_line(&ingested.outcomes)];
     let mut rows = Vec::new();
     for (graph, kind) in [("full", GraphArg::Full), ("mst", GraphArg::Mst)] {
         let out = work.join(format!("poses_{graph}.json"));
@@ -145,25 +164,35 @@ fn run_collection(data_dir: &Path, work: &Path) -> anyhow::Result<()> {
         "{:<8} {:>14} {:>14} {:>16}",
         "graph", "mean error m", "worst error m", "worst angle deg"
     ))?;
+    let mut errors = Vec::new();
     for (graph, poses) in &rows {
         let e = truth.pairwise_error(poses);
         let (mean, worst, worst_deg) = (e.mean_m, e.worst_m, e.worst_deg);
         emit_line(&format!(
             "{graph:<8} {mean:>14.4} {worst:>14.4} {worst_deg:>16.5}"
         ))?;
+        errors.push(e);
     }
-    fuse_and_eval(data_dir, work, &store, &truth, &rows)
+    let pairs = rows[0].1.edges.len();
+    conclusions.push(conclusion::align_line(pairs, &errors[0], &errors[1]));
+    conclusions.extend(fuse_and_eval(data_dir, work, &store, &truth, &rows)?);
+    emit_line(&format!("\nconclusion ({}):", data_dir.display()))?;
+    for line in &conclusions {
+        emit_line(&format!("  {line}"))?;
+    }
+    Ok(())
 }
 
 /// Fuse the motion-averaging result, evaluate it against the true surface with
-/// plots, and print none / mst / full side by side.
+/// plots, and print none / mst / full side by side; the fuse and eval
+/// conclusion lines.
 fn fuse_and_eval(
     data_dir: &Path,
     work: &Path,
     store_path: &Path,
     truth: &Truth,
     rows: &[(&str, PosesFile)],
-) -> anyhow::Result<()> {
+) -> anyhow::Result<[String; 2]> {
     // The true surface: rendered from the generator's parameters, or the
     // source DSM a cut was taken from.
     let truth_tif = match (truth.synthetic(), &truth.cut) {
@@ -195,33 +224,18 @@ fn fuse_and_eval(
         truth_gauge(poses, truth).write(&path)?;
         gauged.push((*graph, path));
     }
-    emit_line("\n== fuse --poses poses_full.json")?;
-    fuse::run(fuse::Args {
-        store: store_path.to_path_buf(),
-        poses: Some(work.join("poses_full.json")),
-        out: Some(work.join("fused_full.tif")),
-        gsd: None,
-        method: FuseMethod::Median,
-        per_dsm: None,
-        force: true,
-        resources: ResourceArgs::default(),
-    })?;
-    emit_line(&format!(
-        "\n== eval --poses poses_full_truth_gauge.json --reference {} --plots plots",
-        truth_tif.display()
-    ))?;
+    let fused = {
+        let config = FuseConfig {
+            method: FuseMethod::Median,
+            threads: all_cores(),
+            ..Default::default()
+        };
+        let poses = PoseSet::from_file(&store, &work.join("poses_full.json"))?;
+        let cache = ResourceArgs::default().cache();
+        let out = work.join("fused_full.tif");
+        fuse(&store, &cache, &poses, &config, &out, &|_, _| {})?
+    };
     let eval_defaults = EvalConfig::default();
-    eval::run(eval::Args {
-        store: store_path.to_path_buf(),
-        poses: Some(gauged[0].1.clone()),
-        tau: eval_defaults.tau_m,
-        reference: Some(truth_tif.clone()),
-        json: false,
-        plots: Some(work.join("plots")),
-        max_samples: eval_defaults.max_samples,
-        all_returns: eval_defaults.all_returns,
-        resources: ResourceArgs::default(),
-    })?;
     let cache = ChunkCache::new(64 << 20);
     let config = EvalConfig {
         threads: all_cores(),
@@ -258,8 +272,11 @@ fn fuse_and_eval(
         "truth",
         Some(PoseSet::from_parsed(&store, &truth_json, truth_file)?),
     ));
+    let plots = work.join("plots");
+    let mut fused_rmse = std::collections::HashMap::new();
     for (name, poses) in &sets {
-        let (report, _) = evaluate(&store, &cache, poses.as_ref(), Some(&truth_tif), &config)?;
+        let (report, plot_data) =
+            evaluate(&store, &cache, poses.as_ref(), Some(&truth_tif), &config)?;
         let pairs = report.mean_after.or(report.mean_before).unwrap_or_default();
         let r = report.reference.as_ref().expect("reference given");
         let f = r.after.unwrap_or(r.before);
@@ -267,8 +284,20 @@ fn fuse_and_eval(
             "{name:<8} {:>18.3} {:>14.3} {:>22.3} {:>16.3} {:>16.3}",
             pairs.rmse_tau_m, pairs.nmad_m, f.rmse_tau_m, f.nmad_m, f.median_m
         ))?;
+        fused_rmse.insert(*name, f.rmse_tau_m);
+        if *name == "full" {
+            // the pictures `eval --plots` draws, for the gauged full-graph poses
+            write_eval_plots(&plots, &store, poses.as_ref(), &report, &plot_data)?;
+        }
     }
-    Ok(())
+    emit_line(&format!(
+        "plots of the full-graph result (scene graph, histograms, difference map) in {}",
+        plots.display()
+    ))?;
+    Ok([
+        conclusion::fuse_line(&fused),
+        conclusion::eval_line(fused_rmse["full"], fused_rmse["none"]),
+    ])
 }
 
 /// `poses` moved by the one rigid transform G that best maps them onto the

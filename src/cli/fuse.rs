@@ -1,7 +1,8 @@
 //! `dsmstream fuse <store> --poses poses.json --out fused.tif`: the registered
 //! mosaic as a Cloud-Optimized GeoTIFF (and `--per-dsm DIR`: each corrected DSM
 //! on its own), with a progress bar over tiles. Existing outputs are kept unless
-//! `--force`.
+//! `--force`. `--bounds` sets the output extent, `--nodata` the no-data value of
+//! height outputs; `--method count` writes a UInt16 band.
 
 use std::path::PathBuf;
 
@@ -33,6 +34,15 @@ pub struct Args {
     /// Replace output files that already exist (refused otherwise).
     #[arg(long)]
     pub force: bool,
+    /// Output extent in the store's CRS, snapped outward to the mosaic grid
+    /// (as `gdalwarp -tap -te`); with --per-dsm every file gets this extent.
+    #[arg(long, num_args = 4, allow_negative_numbers = true,
+          value_names = ["XMIN", "YMIN", "XMAX", "YMAX"])]
+    pub bounds: Option<Vec<f64>>,
+    /// No-data value written for height outputs (default nan); not with
+    /// --method count, whose UInt16 band has none (0 = no DSM).
+    #[arg(long, allow_negative_numbers = true)]
+    pub nodata: Option<f32>,
     #[command(flatten)]
     pub resources: ResourceArgs,
 }
@@ -40,6 +50,12 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(p) = &args.poses {
         require_file(p, "--poses")?;
+    }
+    if args.nodata.is_some() && args.method == FuseMethod::Count {
+        return Err(InputError::new(
+            "--nodata does not apply to --method count (a UInt16 band of counts, 0 = no DSM)",
+        )
+        .into());
     }
     let store = open_store(&args.store)?;
     if !args.force {
@@ -54,6 +70,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         method: args.method,
         threads: args.resources.threads(),
         tile_size: TILE_SIZE,
+        bounds: args.bounds.as_deref().map(|b| [b[0], b[1], b[2], b[3]]),
+        nodata: args.nodata.unwrap_or(f32::NAN),
     };
     let cache = args.resources.cache();
     let bar = progress_bar("tiles");

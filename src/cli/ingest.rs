@@ -1,7 +1,7 @@
-//! `dsmstream ingest`: convert GeoTIFF DSMs into the collection store, with a
-//! progress bar (rows read, through tracing-indicatif, hidden by `-q`; plain
-//! lines of DSMs done when stderr is not a terminal) and one
-//! summary line per DSM on stdout.
+//! `dsmstream ingest`: convert GeoTIFF DSMs (or VRT mosaics of them) into the
+//! collection store, with a progress bar (rows read, through tracing-indicatif,
+//! hidden by `-q`; plain lines of DSMs done when stderr is not a terminal) and
+//! one summary line per DSM on stdout.
 
 use std::cell::RefCell;
 use std::path::PathBuf;
@@ -17,7 +17,8 @@ use super::common::{
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// GeoTIFF files, directories whose *.tif / *.tiff files are all taken, or
+    /// GeoTIFF files, GDAL VRT mosaics of GeoTIFFs (*.vrt, each one DSM named
+    /// after the VRT), directories whose *.tif / *.tiff files are all taken, or
     /// @LIST: a text file naming one input per line (blank lines and # comments
     /// skipped; relative paths from the current directory).
     #[arg(required = true)]

@@ -9,11 +9,14 @@
 //! [`CogWriter`] in that same order, so the file does not depend on the thread
 //! count and memory is the cache budget plus a few tiles per thread.
 //! `fuse_per_dsm` writes each corrected DSM alone on its own extent, on the
-//! mosaic's cell and lattice.
+//! mosaic's cell and lattice. With `bounds`, every raster covers exactly that
+//! box (snapped outward to the lattice); [`output`] says what each file holds
+//! (sample type, no-data, band description and unit).
 
 pub mod corrected;
 pub mod layout;
 pub mod limits;
+pub mod output;
 pub mod pose_set;
 pub mod render;
 
@@ -24,7 +27,7 @@ use rayon::prelude::*;
 
 use crate::cache::{CacheStats, ChunkCache};
 use crate::geo::GeoTransform;
-use crate::geotiff::writer::{CogOptions, CogWriter, GeoTiffWriteError};
+use crate::geotiff::writer::{CogWriter, GeoTiffWriteError};
 use crate::poses::PosesError;
 use crate::store::{Store, StoreError};
 pub use corrected::{CorrectedSurface, PoseXf};
@@ -89,7 +92,7 @@ pub enum FuseMethod {
     Mean,
     Min,
     Max,
-    /// Number of DSMs with a valid height (0 where none).
+    /// Number of DSMs with a valid height (0 where none), written as a UInt16 band.
     Count,
     /// Largest minus smallest corrected height where two or more DSMs overlap
     /// (no-data elsewhere): where the registered DSMs still disagree.
@@ -104,6 +107,12 @@ pub struct FuseConfig {
     pub method: FuseMethod,
     pub threads: usize,
     pub tile_size: u32,
+    /// Output extent [xmin, ymin, xmax, ymax] in CRS units, snapped outward to
+    /// the mosaic's lattice; None = the union of the corrected footprints
+    /// (the mosaic) or the DSM's own corrected footprint (per-DSM outputs).
+    pub bounds: Option<[f64; 4]>,
+    /// No-data value of Float32 outputs (count outputs have none).
+    pub nodata: f32,
 }
 
 impl Default for FuseConfig {
@@ -113,6 +122,8 @@ impl Default for FuseConfig {
             method: FuseMethod::Median,
             threads: 1,
             tile_size: TILE_SIZE,
+            bounds: None,
+            nodata: f32::NAN,
         }
     }
 }
@@ -145,6 +156,7 @@ pub fn fuse(
     progress: Progress,
 ) -> Result<FuseReport, FuseError> {
     let all: Vec<usize> = (0..store.dsms().len()).collect();
+    output::check_bounds_meet_data(store, poses, config)?;
     write_raster(
         store,
         cache,
@@ -153,6 +165,7 @@ pub fn fuse(
         Which {
             dsms: &all,
             lattice: &all,
+            per_dsm: false,
         },
         out,
         progress,
@@ -170,6 +183,7 @@ pub fn fuse_per_dsm(
     dir: &Path,
     progress: Progress,
 ) -> Result<Vec<FuseReport>, FuseError> {
+    output::check_bounds_meet_data(store, poses, config)?;
     std::fs::create_dir_all(dir).map_err(|source| FuseError::Io {
         path: dir.to_path_buf(),
         action: "creating folder",
@@ -187,6 +201,7 @@ pub fn fuse_per_dsm(
             Which {
                 dsms: &[index],
                 lattice: &all,
+                per_dsm: true,
             },
             &path,
             progress,
@@ -238,6 +253,8 @@ pub fn plan_grid_on(
 struct Which<'a> {
     dsms: &'a [usize],
     lattice: &'a [usize],
+    /// One DSM's own file (its id goes in the metadata).
+    per_dsm: bool,
 }
 
 fn write_raster(
@@ -249,7 +266,12 @@ fn write_raster(
     out: &Path,
     progress: Progress,
 ) -> Result<FuseReport, FuseError> {
-    let Which { dsms, lattice } = which;
+    let Which {
+        dsms,
+        lattice,
+        per_dsm,
+    } = which;
+    output::check_options(config)?;
     if let Some(g) = config.gsd_m {
         if !(g.is_finite() && g > 0.0) {
             return Err(FuseError::Input(format!(
@@ -265,19 +287,18 @@ fn write_raster(
                 store.root().display()
             ))
         })?;
+    let grid = output::extent(grid, config.bounds);
     limits::check_mosaic(store, poses, &placed, &grid, cache.budget_bytes())?;
     let removed = crate::atomic::remove_stale_siblings(out, &[".spill-", ".tmp-"]);
     if removed > 0 {
         tracing::warn!(path = %out.display(), removed, "temporaries of killed runs removed");
     }
     let crs = store.crs().cloned().unwrap_or_default();
-    let options = CogOptions {
-        tile_size: config.tile_size,
-        geotransform: grid.geotransform,
-        crs,
-        nodata: f32::NAN,
-        overviews: true,
+    let content = output::RasterContent {
+        method: config.method,
+        dsm_id: per_dsm.then(|| store.dsms()[dsms[0]].id.as_str()),
     };
+    let options = output::cog_options(config, &grid, crs, content);
     let mut writer = CogWriter::create(out, grid.width, grid.height, options)?;
     let renderer = TileRenderer::new(
         store,

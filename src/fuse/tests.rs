@@ -8,7 +8,7 @@ use nalgebra::Matrix4;
 use super::*;
 use crate::geo::Crs;
 use crate::geotiff::reader::GeoTiffReader;
-use crate::geotiff::writer::write_geotiff_f32;
+use crate::geotiff::writer::{write_geotiff_f32, CogOptions};
 use crate::poses::{GaugeLabel, GraphKind, PoseEntry, PosesFile};
 use crate::store::{ingest, ingest::NoProgress, IngestOptions};
 

@@ -24,7 +24,7 @@ use super::plan::{
     undo_create, validate_all,
 };
 use super::pyramid::{level_shapes, PyramidWriter};
-use super::source::{open_geotiff, RowSource, SourceError, SourceOpener};
+use super::source::{RowSource, SourceError, SourceOpener};
 use super::stats::HeightAccumulator;
 use super::StoreError;
 
@@ -133,7 +133,13 @@ pub fn ingest(
     options: &IngestOptions,
     progress: &dyn IngestProgress,
 ) -> Result<IngestReport, IngestError> {
-    ingest_with(inputs, store_path, options, progress, &open_geotiff)
+    ingest_with(
+        inputs,
+        store_path,
+        options,
+        progress,
+        &super::vrt::open_input,
+    )
 }
 
 /// [`ingest`] with any source opener (tests use in-memory sources).

@@ -27,6 +27,7 @@ pub mod source;
 mod stats;
 pub mod validate;
 pub mod view;
+pub mod vrt;
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};

@@ -123,6 +123,7 @@ pub fn write_raster(
         crs: crs.clone(),
         nodata: f32::NAN,
         overviews: true,
+        ..Default::default()
     };
     let mut writer = CogWriter::create(path, spec.width, spec.height, options)?;
     let t = cog_tile_size as u64;

@@ -15,6 +15,7 @@ mod fuse_eval;
 mod fuzz;
 mod icpwire;
 mod ingest;
+mod outputs;
 mod pair_real;
 mod pair_recovery;
 mod readme;

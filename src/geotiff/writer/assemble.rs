@@ -58,7 +58,7 @@ pub(super) fn build_overview(
         let r = prev.refs[(cy * prev.tiles_x + cx) as usize];
         let mut buf = vec![0u8; r.len as usize];
         spill.read_exact_at(&mut buf, r.offset)?;
-        tile::decode_tile(&buf, t as usize, options.nodata).map(Some)
+        tile::decode_tile(&buf, t as usize, options).map(Some)
     };
     for ty in 0..tiles_y {
         let row: Vec<Vec<u8>> = (0..tiles_x)
@@ -70,9 +70,11 @@ pub(super) fn build_overview(
                 }
                 let quads = [0, 1, 2, 3].map(|q| children[q].as_deref());
                 let values = tile::downsample_2x(quads, t as usize);
-                let valid_w = (width - tx * t).min(t) as usize;
-                let valid_h = (height - ty * t).min(t) as usize;
-                tile::encode_tile(&values, t as usize, valid_w, valid_h, options.nodata)
+                let valid = tile::Valid {
+                    width: (width - tx * t).min(t) as usize,
+                    height: (height - ty * t).min(t) as usize,
+                };
+                tile::encode_tile(&values, t as usize, valid, options)
             })
             .collect::<std::io::Result<_>>()?;
         for bytes in row {
@@ -139,6 +141,12 @@ fn image_tags<'a>(
         tile_byte_counts: counts,
         geo: (i == 0).then_some((&options.geotransform, &options.crs)),
         nodata: options.nodata,
+        sample: options.sample,
+        metadata: if i == 0 {
+            options.metadata.to_xml()
+        } else {
+            None
+        },
     }
 }
 

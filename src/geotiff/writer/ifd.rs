@@ -6,6 +6,7 @@
 //! the values, so the writer can lay out every IFD first, then compute the final
 //! tile offsets, then serialise again with the real values.
 
+use super::CogSample;
 use crate::geo::{Crs, GeoTransform};
 
 /// TIFF field types used here.
@@ -160,7 +161,11 @@ pub(crate) struct ImageTags<'a> {
     pub tile_byte_counts: &'a [u64],
     /// Written on the full-resolution image only.
     pub geo: Option<(&'a GeoTransform, &'a Crs)>,
+    /// GDAL_NODATA, written for Float32 only.
     pub nodata: f32,
+    pub sample: CogSample,
+    /// GDAL_METADATA XML (the full-resolution image only).
+    pub metadata: Option<String>,
 }
 
 /// GDAL_NODATA text: "nan" for NaN, else the shortest decimal that round-trips.
@@ -181,6 +186,11 @@ pub(crate) fn image_entries(t: &ImageTags<'_>, bigtiff: bool) -> Vec<Entry> {
             Value::Long(v.iter().map(|&x| x as u32).collect())
         }
     };
+    // (BitsPerSample, Predictor, SampleFormat)
+    let (bits, predictor, format) = match t.sample {
+        CogSample::Float32 => (32, 3, 3),
+        CogSample::UInt16 => (16, 2, 1),
+    };
     let mut e = vec![
         Entry {
             tag: 254,
@@ -196,7 +206,7 @@ pub(crate) fn image_entries(t: &ImageTags<'_>, bigtiff: bool) -> Vec<Entry> {
         },
         Entry {
             tag: 258,
-            value: Value::Short(vec![32]),
+            value: Value::Short(vec![bits]),
         },
         Entry {
             tag: 259,
@@ -216,7 +226,7 @@ pub(crate) fn image_entries(t: &ImageTags<'_>, bigtiff: bool) -> Vec<Entry> {
         },
         Entry {
             tag: 317,
-            value: Value::Short(vec![3]),
+            value: Value::Short(vec![predictor]),
         },
         Entry {
             tag: 322,
@@ -236,16 +246,24 @@ pub(crate) fn image_entries(t: &ImageTags<'_>, bigtiff: bool) -> Vec<Entry> {
         },
         Entry {
             tag: 339,
-            value: Value::Short(vec![3]),
+            value: Value::Short(vec![format]),
         },
     ];
     if let Some((gt, crs)) = t.geo {
         e.extend(geo_entries(gt, crs));
     }
-    e.push(Entry {
-        tag: 42113,
-        value: Value::Ascii(nodata_ascii(t.nodata)),
-    });
+    if let Some(xml) = &t.metadata {
+        e.push(Entry {
+            tag: 42112,
+            value: Value::Ascii(xml.clone()),
+        });
+    }
+    if t.sample == CogSample::Float32 {
+        e.push(Entry {
+            tag: 42113,
+            value: Value::Ascii(nodata_ascii(t.nodata)),
+        });
+    }
     e
 }
 
@@ -343,6 +361,8 @@ mod tests {
                 tile_byte_counts: v,
                 geo: Some((&gt, &crs)),
                 nodata: f32::NAN,
+                sample: CogSample::Float32,
+                metadata: None,
             };
             let a = serialize_ifd(&image_entries(&make(&[0; 12]), bigtiff), 16, 0, bigtiff);
             let big = &[3_000_000_000; 12];

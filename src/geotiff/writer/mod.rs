@@ -1,7 +1,9 @@
-//! Tiled Cloud-Optimized GeoTIFF writer for float32 DSMs, in bounded memory.
+//! Tiled Cloud-Optimized GeoTIFF writer for float32 DSMs (or a UInt16 band of
+//! counts), in bounded memory.
 //!
 //! Tiles arrive in any order through [`CogWriter::write_tile`]; each is
-//! compressed at once (Deflate + floating-point predictor 3) and appended to a
+//! compressed at once (Deflate + floating-point predictor 3, or horizontal
+//! predictor 2 for UInt16) and appended to a
 //! spill file next to the output. [`CogWriter::finish`] builds the 2x overviews
 //! by reading back four tiles of the level above per overview tile, then writes
 //! the COG to `<path>.tmp-<pid>` and renames it: header with GDAL's ghost area,
@@ -14,6 +16,7 @@
 
 mod assemble;
 mod ifd;
+mod metadata;
 mod tile;
 
 use std::fs::File;
@@ -23,9 +26,21 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use crate::geo::{Crs, GeoTransform};
 use assemble::{build_overview, write_cog, Level, SpillRef};
+pub use metadata::GdalMetadata;
 
-/// How to write the COG. `nodata` is written as GDAL_NODATA; NaN input pixels
-/// (and edge padding) are stored as `nodata`.
+/// The stored sample type of the band (values are handed in as `f32` either way).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum CogSample {
+    /// Heights: NaN is no-data, stored as `nodata` and tagged GDAL_NODATA.
+    #[default]
+    Float32,
+    /// Counts: values rounded and clamped to 0..=65535; NaN and edge padding
+    /// are stored as 0 and no GDAL_NODATA is written (0 is a real count).
+    UInt16,
+}
+
+/// How to write the COG. For Float32, `nodata` is written as GDAL_NODATA and
+/// NaN input pixels (and edge padding) are stored as `nodata`.
 #[derive(Clone, Debug)]
 pub struct CogOptions {
     /// Tile edge in pixels, a multiple of 16.
@@ -35,6 +50,9 @@ pub struct CogOptions {
     pub nodata: f32,
     /// Build 2x overviews until the image fits in one tile.
     pub overviews: bool,
+    pub sample: CogSample,
+    /// Band description, unit and dataset items (GDAL_METADATA tag).
+    pub metadata: GdalMetadata,
 }
 
 impl Default for CogOptions {
@@ -45,6 +63,8 @@ impl Default for CogOptions {
             crs: Crs::default(),
             nodata: f32::NAN,
             overviews: true,
+            sample: CogSample::Float32,
+            metadata: GdalMetadata::default(),
         }
     }
 }
@@ -226,7 +246,11 @@ impl CogWriter {
         }
         let valid_w = (self.width - tx * t).min(t) as usize;
         let valid_h = (self.height - ty * t).min(t) as usize;
-        let bytes = tile::encode_tile(data, t as usize, valid_w, valid_h, self.options.nodata)
+        let valid = tile::Valid {
+            width: valid_w,
+            height: valid_h,
+        };
+        let bytes = tile::encode_tile(data, t as usize, valid, &self.options)
             .map_err(|e| bad(format!("compression failed: {e}")))?;
         Ok(EncodedTile { tx, ty, bytes })
     }

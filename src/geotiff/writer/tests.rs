@@ -15,6 +15,7 @@ fn options(tile_size: u32, nodata: f32) -> CogOptions {
         },
         nodata,
         overviews: true,
+        ..Default::default()
     }
 }
 
@@ -295,4 +296,74 @@ fn existing_file_is_replaced_only_on_success() {
     let images = read_all_images(&path);
     assert_eq!(images[0].2, vec![2.5; 400]);
     assert_eq!((images[1].0, images[1].1), (10, 10));
+}
+
+#[test]
+fn uint16_band_round_trips_with_overviews_and_no_nodata_tag() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("c.tif");
+    let (w, h) = (70u64, 45u64);
+    let data: Vec<f32> = (0..w * h)
+        .map(|i| {
+            if i % 11 == 0 {
+                f32::NAN
+            } else {
+                (i % 4) as f32
+            }
+        })
+        .collect();
+    let mut opts = options(32, f32::NAN);
+    opts.sample = CogSample::UInt16;
+    write_geotiff_f32(&path, w, h, opts, &data).unwrap();
+    let mut d = Decoder::new(File::open(&path).unwrap()).unwrap();
+    assert!(
+        d.get_tag(Tag::GdalNodata).is_err(),
+        "no GDAL_NODATA on UInt16"
+    );
+    let mut levels = 0;
+    loop {
+        let (iw, ih) = d.dimensions().unwrap();
+        let DecodingResult::U16(v) = d.read_image().unwrap() else {
+            panic!("not u16")
+        };
+        if levels == 0 {
+            assert_eq!((iw as u64, ih as u64), (w, h));
+            for (a, b) in v.iter().zip(&data) {
+                assert_eq!(*a as f32, if b.is_nan() { 0.0 } else { *b });
+            }
+        }
+        assert!(v.iter().all(|&c| c <= 3), "overview means stay in range");
+        levels += 1;
+        if !d.more_images() {
+            break;
+        }
+        d.next_image().unwrap();
+    }
+    assert_eq!(levels, 3, "70 x 45 at 32 px tiles: two overviews");
+}
+
+#[test]
+fn gdal_metadata_tag_carries_band_description_and_unit() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("m.tif");
+    let mut opts = options(16, f32::NAN);
+    opts.metadata = GdalMetadata {
+        band_description: Some("height".into()),
+        band_unit: Some("m".into()),
+        items: vec![("FUSE_METHOD".into(), "median".into())],
+    };
+    write_geotiff_f32(&path, 40, 40, opts, &pattern(40, 40)).unwrap();
+    let mut d = Decoder::new(File::open(&path).unwrap()).unwrap();
+    let xml = d
+        .get_tag(Tag::Unknown(42112))
+        .unwrap()
+        .into_string()
+        .unwrap();
+    assert!(xml.contains("role=\"description\">height</Item>"), "{xml}");
+    assert!(xml.contains("role=\"unittype\">m</Item>"), "{xml}");
+    d.next_image().unwrap();
+    assert!(
+        d.get_tag(Tag::Unknown(42112)).is_err(),
+        "overviews carry none"
+    );
 }

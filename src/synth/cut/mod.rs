@@ -320,6 +320,7 @@ fn write_cut_tile(
         crs: info.crs.clone(),
         nodata: info.nodata.map_or(f32::NAN, |v| v as f32),
         overviews: true,
+        ..Default::default()
     };
     let mut writer = CogWriter::create(path, tile.spec.width, tile.spec.height, options)?;
     let t = cog_tile_size as u64;

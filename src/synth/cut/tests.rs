@@ -35,6 +35,7 @@ fn write_source(dir: &Path, crs: Crs) -> PathBuf {
         crs,
         nodata: -9999.0,
         overviews: true,
+        ..Default::default()
     };
     write_geotiff_f32(&path, W, H, options, &data).unwrap();
     path
