@@ -240,11 +240,12 @@ pub fn recover(root: &Path, mut attrs: RootAttrs) -> Result<RootAttrs, StoreErro
         }
     }
     // Complete groups the catalog does not list yet (killed before the catalog write).
+    let listed: std::collections::HashSet<String> = attrs.dsms.iter().cloned().collect();
     for name in subdirectories(root)?
         .iter()
         .filter(|n| !n.contains(TMP_TAG) && !n.contains(OLD_TAG))
     {
-        if attrs.dsms.contains(name) {
+        if listed.contains(name) {
             continue;
         }
         if validate::check_id(name).is_err() {
