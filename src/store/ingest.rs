@@ -179,6 +179,7 @@ fn write_all(
     open: &SourceOpener,
     outcomes: &mut Vec<DsmOutcome>,
 ) -> Result<(), IngestError> {
+    super::alloc::reuse_freed_buffers();
     let fs =
         FilesystemStore::new(store_path).map_err(|e| StoreError::zarr(store_path.display(), e))?;
     let fs = Arc::new(fs);

@@ -13,6 +13,7 @@
 //! per DSM and level); [`StoreGrid`] gives pixel access to one level; `ingest`
 //! writes the store from GeoTIFFs (or any [`source::RowSource`]).
 
+mod alloc;
 pub mod catalog;
 pub mod check;
 mod chunks;
