@@ -17,6 +17,7 @@ mod alloc;
 pub mod catalog;
 pub mod check;
 mod chunks;
+mod commit;
 mod files;
 pub mod geo_attrs;
 pub mod grid;
