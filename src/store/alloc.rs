@@ -1,4 +1,5 @@
-//! Allocator tuning for ingest. Writing a chunk allocates a few short-lived
+//! Allocator tuning for ingest and every reader of the store. Writing a chunk
+//! (and reading one: a decoded chunk is 1 MiB at 512 px) allocates a few short-lived
 //! MiB-sized buffers (the chunk, its bytes, the zstd output); glibc serves
 //! such sizes with fresh `mmap`s (or trims them back to the kernel) and every
 //! one costs a page fault and a zeroed page per 4 KiB: about 2 million faults,
@@ -8,7 +9,7 @@
 
 /// Keep freed blocks below 32 MiB in the process heap (glibc only; elsewhere
 /// a no-op). Process-wide and idempotent.
-pub(super) fn reuse_freed_buffers() {
+pub(crate) fn reuse_freed_buffers() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     {
         extern "C" {

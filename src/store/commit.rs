@@ -184,12 +184,18 @@ mod tests {
         let crs = sample_meta("a").crs;
         let mut batch = CatalogBatch::new(root);
         // The first commit writes the catalog (nothing written yet: no cost).
-        batch.commit("a", &make_tmp(root, "a.tmp-1", "a"), &crs).unwrap();
+        batch
+            .commit("a", &make_tmp(root, "a.tmp-1", "a"), &crs)
+            .unwrap();
         assert_eq!(catalog::read_root(root).unwrap().dsms, ["a"]);
         // Pretend the last write took an hour: the next ids wait for the flush.
         batch.last_cost = Duration::from_secs(3600);
-        batch.commit("b", &make_tmp(root, "b.tmp-1", "b"), &crs).unwrap();
-        batch.commit("c", &make_tmp(root, "c.tmp-1", "c"), &crs).unwrap();
+        batch
+            .commit("b", &make_tmp(root, "b.tmp-1", "b"), &crs)
+            .unwrap();
+        batch
+            .commit("c", &make_tmp(root, "c.tmp-1", "c"), &crs)
+            .unwrap();
         assert!(root.join("c/marker").is_file());
         assert_eq!(catalog::read_root(root).unwrap().dsms, ["a"]);
         // Another run lists "x" and, by adoption, "b".
@@ -209,9 +215,15 @@ mod tests {
         empty_store(root);
         let crs = sample_meta("a").crs;
         let mut batch = CatalogBatch::new(root);
-        batch.commit("a", &make_tmp(root, "a.tmp-1", "a"), &crs).unwrap();
+        batch
+            .commit("a", &make_tmp(root, "a.tmp-1", "a"), &crs)
+            .unwrap();
         let mut other = crs.clone();
-        other.epsg = Some(if crs.epsg == Some(32633) { 32634 } else { 32633 });
+        other.epsg = Some(if crs.epsg == Some(32633) {
+            32634
+        } else {
+            32633
+        });
         other.wkt = None;
         other.geokeys.clear();
         let tmp = make_tmp(root, "b.tmp-1", "b");

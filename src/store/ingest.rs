@@ -187,7 +187,9 @@ fn write_all(
     let fs = Arc::new(fs);
     let mut batch = CatalogBatch::new(store_path);
     for (file, action) in todo {
-        let written = ingest_one(&fs, store_path, file, action, options, progress, open, &mut batch);
+        let written = ingest_one(
+            &fs, store_path, file, action, options, progress, open, &mut batch,
+        );
         let outcome = match written {
             Ok(outcome) => outcome,
             Err(e) => {
@@ -229,15 +231,17 @@ fn ingest_one(
         progress,
     )?;
     let tmp = store_path.join(files::tmp_name(&file.id));
-    batch.commit(&file.id, &tmp, &meta.crs).map_err(|e| match e {
-        StoreError::Invalid { message, .. } => {
-            IngestError::BadInput(format!("{}: {message}", file.path.display()))
-        }
-        other => IngestError::Write {
-            input: file.path.display().to_string(),
-            source: other,
-        },
-    })?;
+    batch
+        .commit(&file.id, &tmp, &meta.crs)
+        .map_err(|e| match e {
+            StoreError::Invalid { message, .. } => {
+                IngestError::BadInput(format!("{}: {message}", file.path.display()))
+            }
+            other => IngestError::Write {
+                input: file.path.display().to_string(),
+                source: other,
+            },
+        })?;
     let outcome = DsmOutcome {
         stored_bytes: files::dir_bytes(&store_path.join(&file.id)),
         seconds: started.elapsed().as_secs_f64(),

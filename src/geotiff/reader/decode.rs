@@ -14,8 +14,8 @@ use rayon::prelude::*;
 use tiff::decoder::{Decoder, DecodingResult, Limits};
 use tiff::{TiffError, TiffFormatError, TiffUnsupportedError};
 
-use super::direct::{DirectCodec, InflateError};
 use super::convert::convert;
+use super::direct::{DirectCodec, InflateError};
 use super::layout::BlockLayout;
 use super::GeoTiffError;
 

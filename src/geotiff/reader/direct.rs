@@ -90,9 +90,7 @@ impl DirectCodec {
                 let (p0, rest) = row.split_at(n);
                 let (p1, rest) = rest.split_at(n);
                 let (p2, p3) = rest.split_at(n);
-                let values = out
-                    .iter_mut()
-                    .zip(p0.iter().zip(p1).zip(p2.iter().zip(p3)));
+                let values = out.iter_mut().zip(p0.iter().zip(p1).zip(p2.iter().zip(p3)));
                 match nodata {
                     Some(nd) => values.for_each(|(o, ((&a, &b), (&c, &d)))| {
                         let v = f32::from_bits(u32::from_be_bytes([a, b, c, d]));
@@ -173,12 +171,23 @@ mod tests {
     fn predictor_3_rows_decode_to_their_values_with_nodata_as_nan() {
         let (n, rows) = (6, 3);
         let values: Vec<f32> = (0..n * rows)
-            .map(|i| if i == 4 { -9999.0 } else { 100.0 + i as f32 * 0.37 })
+            .map(|i| {
+                if i == 4 {
+                    -9999.0
+                } else {
+                    100.0 + i as f32 * 0.37
+                }
+            })
             .collect();
         let codec = DirectCodec::for_tags(8, 3, true, 1, true).unwrap();
         let (mut inflater, mut buf) = (Decompress::new(true), Vec::new());
         codec
-            .inflate(&mut inflater, &zlib(&predictor3(&values, n)), &mut buf, 4 * n * rows)
+            .inflate(
+                &mut inflater,
+                &zlib(&predictor3(&values, n)),
+                &mut buf,
+                4 * n * rows,
+            )
             .unwrap();
         let mut out = vec![0.0f32; 5]; // the last column is padding
         for (r, row) in buf.chunks_mut(4 * n).enumerate() {
@@ -200,14 +209,19 @@ mod tests {
         let be: Vec<u8> = values.iter().flat_map(|v| v.to_be_bytes()).collect();
         let codec = DirectCodec::for_tags(32946, 1, true, 1, false).unwrap();
         let (mut inflater, mut buf) = (Decompress::new(true), Vec::new());
-        codec.inflate(&mut inflater, &zlib(&be), &mut buf, 12).unwrap();
+        codec
+            .inflate(&mut inflater, &zlib(&be), &mut buf, 12)
+            .unwrap();
         let mut out = [0.0f32; 3];
         codec.row_to_f32(&mut buf, None, &mut out);
         assert_eq!(out, values);
         let err = codec
             .inflate(&mut inflater, &zlib(&be), &mut buf, 16)
             .unwrap_err();
-        assert!(matches!(&err, InflateError::Corrupt(m) if m.contains("12 of 16")), "{err:?}");
+        assert!(
+            matches!(&err, InflateError::Corrupt(m) if m.contains("12 of 16")),
+            "{err:?}"
+        );
         let truncated = &zlib(&be)[..6];
         let err = codec.inflate(&mut inflater, truncated, &mut buf, 12);
         assert!(matches!(err, Err(InflateError::Truncated(_))), "{err:?}");

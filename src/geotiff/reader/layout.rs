@@ -323,7 +323,13 @@ pub(super) fn parse<R: Read + Seek>(
         blocks_across,
         byte_counts,
         offsets,
-        direct: DirectCodec::for_tags(compression, predictor, float32, samples_in_block, little_endian),
+        direct: DirectCodec::for_tags(
+            compression,
+            predictor,
+            float32,
+            samples_in_block,
+            little_endian,
+        ),
         samples_in_block,
         sample_type,
     };
