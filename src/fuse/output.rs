@@ -8,8 +8,8 @@
 
 use super::layout::OutputGrid;
 use super::{FuseConfig, FuseError, FuseMethod, PoseSet};
-use crate::geotiff::writer::{CogOptions, CogSample, GdalMetadata};
 use crate::geo::Crs;
+use crate::geotiff::writer::{CogOptions, CogSample, GdalMetadata};
 use crate::store::Store;
 
 /// Unit of heights and height differences: the store's heights are metres.

@@ -13,9 +13,12 @@
 //! giant strip is one block: it decodes in one call, and a partial read keeps
 //! the whole image. Multi-band files give band 1; internal mask IFDs and
 //! scale/offset metadata are ignored. Submodules: `layout` (tags to block grid
-//! and metadata), `decode` (blocks to `f32`).
+//! and metadata), `decode` (blocks to `f32`), `convert` (samples to `f32`), `direct` (Deflate f32 blocks,
+//! predictor none or 3, decoded without the `tiff` crate: the fast ingest path).
 
+mod convert;
 mod decode;
+mod direct;
 mod layout;
 #[cfg(test)]
 mod tests;
@@ -200,7 +203,8 @@ impl GeoTiffReader {
         layout::check_magic(path, map.as_ref())?;
         let mut decoder = decode::new_decoder(&map).map_err(|e| decode::tiff_error(path, e))?;
         let bigtiff = map.as_ref()[2..4] == [43, 0] || map.as_ref()[2..4] == [0, 43];
-        let parsed = layout::parse(path, &mut decoder, file_len, bigtiff)?;
+        let little_endian = &map.as_ref()[..2] == b"II";
+        let parsed = layout::parse(path, &mut decoder, file_len, bigtiff, little_endian)?;
         let blocks = BlockDecoder::new(path, map, parsed.layout, parsed.info.nodata, decoder);
         tracing::debug!(path = %path.display(), width = parsed.info.width, height = parsed.info.height,
             compression = %parsed.info.compression, "geotiff opened");

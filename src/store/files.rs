@@ -4,8 +4,8 @@
 //!
 //! A DSM is written as `<id>.tmp-<pid>-<host>/` (no lock held: concurrent
 //! ingests write in parallel) and, under the store lock, renamed to `<id>/`
-//! and added to a freshly re-read root catalog; a replaced group is first
-//! moved aside to `<id>.old-<pid>/`. On the next run (under the lock),
+//! and added to a freshly re-read root catalog (in batches: see `commit`); a
+//! replaced group is first moved aside to `<id>.old-<pid>/`. On the next run (under the lock),
 //! temporaries of dead processes of this host are deleted (another host's are
 //! left alone: its processes cannot be seen from here), a moved-aside group
 //! whose replacement never arrived is moved back, catalog temporaries
@@ -240,11 +240,12 @@ pub fn recover(root: &Path, mut attrs: RootAttrs) -> Result<RootAttrs, StoreErro
         }
     }
     // Complete groups the catalog does not list yet (killed before the catalog write).
+    let listed: std::collections::HashSet<String> = attrs.dsms.iter().cloned().collect();
     for name in subdirectories(root)?
         .iter()
         .filter(|n| !n.contains(TMP_TAG) && !n.contains(OLD_TAG))
     {
-        if attrs.dsms.contains(name) {
+        if listed.contains(name) {
             continue;
         }
         if validate::check_id(name).is_err() {
@@ -264,47 +265,6 @@ pub fn recover(root: &Path, mut attrs: RootAttrs) -> Result<RootAttrs, StoreErro
     if changed {
         catalog::write_root(root, &attrs)?;
     }
-    Ok(attrs)
-}
-
-/// Under the store lock: re-read the catalog (another run may have added
-/// DSMs since this one read it), check the DSM's CRS against it, move the
-/// finished group `tmp` to `<root>/<id>` (replacing an existing one) and list
-/// it. Returns the merged catalog.
-pub fn commit(
-    root: &Path,
-    id: &str,
-    tmp: &Path,
-    crs: &crate::geo::Crs,
-) -> Result<RootAttrs, StoreError> {
-    let _lock = super::StoreLock::acquire(root)?;
-    let mut attrs = catalog::read_root(root)?;
-    if let Some(collection) = &attrs.crs {
-        if !collection.same_as(crs) {
-            return Err(StoreError::invalid(
-                tmp,
-                format!(
-                    "CRS {} differs from the collection's CRS {} (set by another run meanwhile)",
-                    crs.label(),
-                    collection.label()
-                ),
-            ));
-        }
-    }
-    let live = root.join(id);
-    if live.exists() {
-        let old = root.join(format!("{id}{OLD_TAG}{}", std::process::id()));
-        std::fs::rename(&live, &old).map_err(|e| StoreError::io(&live, e))?;
-        std::fs::rename(tmp, &live).map_err(|e| StoreError::io(&live, e))?;
-        std::fs::remove_dir_all(&old).map_err(|e| StoreError::io(&old, e))?;
-    } else {
-        std::fs::rename(tmp, &live).map_err(|e| StoreError::io(&live, e))?;
-    }
-    if !attrs.dsms.iter().any(|d| d == id) {
-        attrs.dsms.push(id.to_string());
-    }
-    attrs.crs.get_or_insert_with(|| crs.clone());
-    catalog::write_root(root, &attrs)?;
     Ok(attrs)
 }
 
@@ -361,35 +321,5 @@ mod tests {
         assert_eq!(attrs.dsms, ["b", "c"]);
         assert_eq!(catalog::read_root(root).unwrap(), attrs);
         assert!(attrs.crs.is_some());
-    }
-
-    #[test]
-    fn commit_replaces_an_existing_group() {
-        let dir = tempfile::tempdir().unwrap();
-        let root = dir.path();
-        let mut attrs = RootAttrs {
-            version: STORE_VERSION,
-            crs: None,
-            dsms: vec![],
-        };
-        catalog::write_root(root, &attrs).unwrap();
-        let crs = sample_meta("a").crs;
-        for round in 0..2 {
-            let tmp = root.join("a.tmp-7");
-            std::fs::create_dir(&tmp).unwrap();
-            std::fs::write(tmp.join("marker"), format!("{round}")).unwrap();
-            attrs = commit(root, "a", &tmp, &crs).unwrap();
-            assert_eq!(
-                std::fs::read_to_string(root.join("a/marker")).unwrap(),
-                format!("{round}")
-            );
-        }
-        assert_eq!(attrs.dsms, ["a"]);
-        let names: Vec<_> = std::fs::read_dir(root)
-            .unwrap()
-            .map(|e| e.unwrap().file_name())
-            .collect();
-        let names: Vec<_> = names.into_iter().filter(|n| n != LOCK_FILE).collect();
-        assert_eq!(names.len(), 2, "a/ and zarr.json only: {names:?}");
     }
 }

@@ -6,7 +6,8 @@
 //! as the collection, north-up) before writing anything; then stream each
 //! file, a chunk row at a time, into `<id>.tmp-<pid>/` (level 0 and overviews
 //! in one pass, see `pyramid`), rename it to `<id>/` and only then list it in
-//! the root catalog. A file that turns out to hold no valid pixel is refused
+//! the root catalog (in batches whose cost stays a small part of the run, see
+//! `commit`). A file that turns out to hold no valid pixel is refused
 //! when its pass ends; DSMs committed before it stay.
 
 use std::path::{Path, PathBuf};
@@ -18,6 +19,7 @@ use zarrs::filesystem::FilesystemStore;
 
 use super::catalog::{self, DsmMeta, StorageSettings};
 use super::chunks::ChunkRecord;
+use super::commit::CatalogBatch;
 use super::files::{self, InputFile};
 use super::plan::{
     check_options, create_store, empty_catalog, plan_all, read_existing, recover_locked,
@@ -185,18 +187,35 @@ fn write_all(
     open: &SourceOpener,
     outcomes: &mut Vec<DsmOutcome>,
 ) -> Result<(), IngestError> {
+    super::alloc::reuse_freed_buffers();
     let fs =
         FilesystemStore::new(store_path).map_err(|e| StoreError::zarr(store_path.display(), e))?;
     let fs = Arc::new(fs);
+    let mut batch = CatalogBatch::new(store_path);
     for (file, action) in todo {
-        let outcome = ingest_one(&fs, store_path, file, action, options, progress, open)?;
+        let written = ingest_one(
+            &fs, store_path, file, action, options, progress, open, &mut batch,
+        );
+        let outcome = match written {
+            Ok(outcome) => outcome,
+            Err(e) => {
+                // DSMs committed before the failing one stay listed.
+                if let Err(flush) = batch.flush() {
+                    tracing::warn!("{flush}");
+                }
+                return Err(e);
+            }
+        };
         progress.dsm_finished(&outcome);
         outcomes.push(outcome);
     }
+    batch.flush()?;
     Ok(())
 }
 
-/// Write one DSM, commit it (rename + catalog) and describe what was done.
+/// Write one DSM, commit it (rename; catalog now or with a later batch) and
+/// describe what was done.
+#[allow(clippy::too_many_arguments)]
 fn ingest_one(
     fs: &Arc<FilesystemStore>,
     store_path: &Path,
@@ -205,6 +224,7 @@ fn ingest_one(
     options: &IngestOptions,
     progress: &dyn IngestProgress,
     open: &SourceOpener,
+    batch: &mut CatalogBatch,
 ) -> Result<DsmOutcome, IngestError> {
     let started = Instant::now();
     let mut source = open(&file.path)?;
@@ -217,15 +237,17 @@ fn ingest_one(
         progress,
     )?;
     let tmp = store_path.join(files::tmp_name(&file.id));
-    files::commit(store_path, &file.id, &tmp, &meta.crs).map_err(|e| match e {
-        StoreError::Invalid { message, .. } => {
-            IngestError::BadInput(format!("{}: {message}", file.path.display()))
-        }
-        other => IngestError::Write {
-            input: file.path.display().to_string(),
-            source: other,
-        },
-    })?;
+    batch
+        .commit(&file.id, &tmp, &meta.crs)
+        .map_err(|e| match e {
+            StoreError::Invalid { message, .. } => {
+                IngestError::BadInput(format!("{}: {message}", file.path.display()))
+            }
+            other => IngestError::Write {
+                input: file.path.display().to_string(),
+                source: other,
+            },
+        })?;
     let outcome = DsmOutcome {
         stored_bytes: files::dir_bytes(&store_path.join(&file.id)),
         seconds: started.elapsed().as_secs_f64(),

@@ -13,9 +13,11 @@
 //! per DSM and level); [`StoreGrid`] gives pixel access to one level; `ingest`
 //! writes the store from GeoTIFFs (or any [`source::RowSource`]).
 
+mod alloc;
 pub mod catalog;
 pub mod check;
 mod chunks;
+mod commit;
 mod files;
 pub mod geo_attrs;
 pub mod grid;
@@ -163,6 +165,9 @@ pub struct Store {
     fs: Arc<FilesystemStore>,
     crs: Option<Crs>,
     dsms: Vec<DsmMeta>,
+    /// DSM id -> index in `dsms` ([`Store::find`] in O(1): callers look up
+    /// every pose or pair by id, which a scan made O(N²) at 10^4+ DSMs).
+    index: HashMap<String, usize>,
     /// Catalogued DSMs left out at open, with the reason (see [`Store::open`]).
     skipped: Vec<SkippedDsm>,
     /// Per DSM, which chunks were written (None: a store written before the record).
@@ -195,6 +200,7 @@ impl Store {
     /// so one damaged DSM never makes the whole store unreadable.
     pub fn open(path: &Path) -> Result<Store, StoreError> {
         configure_zarrs();
+        alloc::reuse_freed_buffers();
         if !path.join("zarr.json").is_file() {
             return Err(StoreError::NotAStore {
                 path: path.display().to_string(),
@@ -221,12 +227,18 @@ impl Store {
             .iter()
             .map(|m: &DsmMeta| m.chunk_record.clone().map(Arc::new))
             .collect();
+        let index = dsms
+            .iter()
+            .enumerate()
+            .map(|(i, m)| (m.id.clone(), i))
+            .collect();
         let fs = FilesystemStore::new(path).map_err(|e| StoreError::zarr(path.display(), e))?;
         Ok(Store {
             root: path.to_path_buf(),
             fs: Arc::new(fs),
             crs: root_attrs.crs,
             dsms,
+            index,
             skipped,
             records,
             arrays: Mutex::new(HashMap::new()),
@@ -271,7 +283,7 @@ impl Store {
 
     /// Index of the DSM with this id.
     pub fn find(&self, id: &str) -> Option<usize> {
-        self.dsms.iter().position(|d| d.id == id)
+        self.index.get(id).copied()
     }
 
     /// The zarrs array of one level (opened on first use, then shared).

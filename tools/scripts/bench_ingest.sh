@@ -6,7 +6,10 @@
 #
 # Usage: tools/scripts/bench_ingest.sh [RUNS]          (from the repository root)
 # Env:   BENCH_DIR (default /tmp/dsmstream_bench), SIZE (default 20000),
-#        BIN (default target/release), INPUT (default $BENCH_DIR/big_$SIZE.tif)
+#        BIN (default target/release), INPUT (default $BENCH_DIR/big_$SIZE.tif),
+#        BASE_BIN (a folder with another build's dsmstream, e.g. of the previous
+#        commit: adds the row `dsmstream_base`, for before/after in one run),
+#        NAMES (the rows to run, default all; e.g. "dsmstream dsmstream_base gdal_default")
 #
 # Needs a release build (`cargo build --release`) and gdal-bin, which this
 # script installs with apt-get when gdal_translate is missing (benchmark only;
@@ -34,10 +37,13 @@ fi
 declare -A CMD=(
   [dsmstream]="$BIN/dsmstream ingest $INPUT --store \$OUT -q"
   [dsmstream_zstd3]="$BIN/dsmstream ingest $INPUT --store \$OUT -q --compression zstd:3"
+  [dsmstream_base]="${BASE_BIN:-$BIN}/dsmstream ingest $INPUT --store \$OUT -q"
   [gdal_default]="gdal_translate -q -of Zarr $INPUT \$OUT"
   [gdal_matched]="gdal_translate -q -of Zarr -co FORMAT=ZARR_V3 -co COMPRESS=ZSTD -co ZSTD_LEVEL=3 -co BLOCKSIZE=512,512 $INPUT \$OUT"
 )
-NAMES=(dsmstream dsmstream_zstd3 gdal_default gdal_matched)
+default_names="dsmstream dsmstream_zstd3 gdal_default gdal_matched"
+[ -n "${BASE_BIN:-}" ] && default_names="dsmstream dsmstream_base dsmstream_zstd3 gdal_default gdal_matched"
+read -r -a NAMES <<<"${NAMES:-$default_names}"
 
 declare -A WALL CPU RSS BYTES
 for run in $(seq 1 "$RUNS"); do

@@ -14,8 +14,10 @@ use rayon::prelude::*;
 use tiff::decoder::{Decoder, DecodingResult, Limits};
 use tiff::{TiffError, TiffFormatError, TiffUnsupportedError};
 
+use super::convert::convert;
+use super::direct::{DirectCodec, InflateError};
 use super::layout::BlockLayout;
-use super::{GeoTiffError, SampleType};
+use super::GeoTiffError;
 
 /// The file's bytes, shared by every decoder.
 #[derive(Clone)]
@@ -104,6 +106,8 @@ pub(super) fn tiff_error(path: &Path, e: TiffError) -> GeoTiffError {
 
 struct Worker {
     decoder: TiffDecoder,
+    /// zlib state of the direct codec (reset per block).
+    inflater: flate2::Decompress,
     /// Decoded bytes of a block whose data fills its rows.
     bytes: Vec<u8>,
     /// Decoded padded rows of a right-edge tile.
@@ -218,6 +222,14 @@ impl BlockDecoder {
             Some(w) => w,
             None => Worker::new(new_decoder(&self.map).map_err(|e| tiff_error(&self.path, e))?),
         };
+        if let Some(codec) = l.direct {
+            let result = self.decode_direct(codec, &mut worker, (bx, by), sink);
+            self.idle
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .push(worker);
+            return result;
+        }
         let stride = l.samples_in_block;
         let pixel_bytes = stride * l.sample_type.bytes();
         let data_row_bytes = w as usize * pixel_bytes;
@@ -277,10 +289,64 @@ impl BlockDecoder {
     }
 }
 
+impl BlockDecoder {
+    /// [`decode_into`](Self::decode_into) for a block the direct codec reads
+    /// (a non-sparse block): inflate it from the map, then undo the predictor
+    /// and convert each needed row straight into `sink`.
+    fn decode_direct(
+        &self,
+        codec: DirectCodec,
+        worker: &mut Worker,
+        (bx, by): (u64, u64),
+        sink: &RowSink<'_>,
+    ) -> Result<(), GeoTiffError> {
+        let l = &self.layout;
+        let (w, h) = l.block_data_dims(bx, by);
+        let (x0, top) = ((bx * l.block_width) as usize, by * l.block_height);
+        let index = l.block_index(bx, by);
+        let (offset, count) = (l.offsets[index] as usize, l.byte_counts[index] as usize);
+        let compressed = &self.map.as_ref()[offset..offset + count];
+        let row_bytes = l.block_width as usize * 4;
+        let len = row_bytes.saturating_mul(h as usize);
+        try_resize(&self.path, &mut worker.bytes, len, 0)?;
+        let Worker {
+            inflater, bytes, ..
+        } = worker;
+        codec
+            .inflate(inflater, compressed, bytes, len)
+            .map_err(|e| {
+                let path = self.path.clone();
+                match e {
+                    InflateError::Truncated(m) => GeoTiffError::Truncated {
+                        path,
+                        detail: format!("block ({bx}, {by}): {m}"),
+                    },
+                    InflateError::Corrupt(m) => GeoTiffError::Corrupt {
+                        path,
+                        detail: format!("block ({bx}, {by}) does not decode: {m}"),
+                    },
+                }
+            })?;
+        let nodata = self.nodata.and_then(|v| (!v.is_nan()).then_some(v as f32));
+        for row in top.max(sink.first_row)..(top + h).min(sink.end_row) {
+            let at = (row - top) as usize * row_bytes;
+            let src = &mut bytes[at..at + row_bytes];
+            // SAFETY: this task owns block (bx, by).
+            unsafe {
+                sink.write_segment(row, x0, w as usize, |seg| {
+                    codec.row_to_f32(src, nodata, seg)
+                })
+            };
+        }
+        Ok(())
+    }
+}
+
 impl Worker {
     fn new(decoder: TiffDecoder) -> Worker {
         Worker {
             decoder,
+            inflater: flate2::Decompress::new(true),
             bytes: Vec::new(),
             padded: DecodingResult::U8(Vec::new()),
         }
@@ -298,100 +364,5 @@ fn block_error(path: &Path, e: TiffError, bx: u64, by: u64) -> GeoTiffError {
             detail: format!("block ({bx}, {by}) does not decode: {detail}"),
         },
         other => other,
-    }
-}
-
-/// A stored sample type: native-endian bytes to `f32`, and the exact no-data value.
-trait Sample: Copy + PartialEq {
-    const SIZE: usize;
-    fn read(b: &[u8]) -> Self;
-    fn to_f32(self) -> f32;
-    /// The no-data value in this type, None when it cannot occur (as GDAL).
-    fn exact(v: f64) -> Option<Self>;
-}
-
-macro_rules! int_sample {
-    ($($t:ty),*) => {$(
-        impl Sample for $t {
-            const SIZE: usize = std::mem::size_of::<$t>();
-            #[inline(always)]
-            fn read(b: &[u8]) -> Self {
-                <$t>::from_ne_bytes(b[..Self::SIZE].try_into().unwrap())
-            }
-            #[inline(always)]
-            fn to_f32(self) -> f32 {
-                self as f32
-            }
-            fn exact(v: f64) -> Option<Self> {
-                let in_range = v >= <$t>::MIN as f64 && v <= <$t>::MAX as f64;
-                (v.fract() == 0.0 && in_range).then(|| v as $t)
-            }
-        }
-    )*};
-}
-int_sample!(u8, i8, u16, i16, u32, i32);
-
-impl Sample for f32 {
-    const SIZE: usize = 4;
-    #[inline(always)]
-    fn read(b: &[u8]) -> Self {
-        f32::from_ne_bytes(b[..4].try_into().unwrap())
-    }
-    #[inline(always)]
-    fn to_f32(self) -> f32 {
-        self
-    }
-    fn exact(v: f64) -> Option<Self> {
-        (!v.is_nan()).then_some(v as f32)
-    }
-}
-
-impl Sample for f64 {
-    const SIZE: usize = 8;
-    #[inline(always)]
-    fn read(b: &[u8]) -> Self {
-        f64::from_ne_bytes(b[..8].try_into().unwrap())
-    }
-    #[inline(always)]
-    fn to_f32(self) -> f32 {
-        self as f32
-    }
-    fn exact(v: f64) -> Option<Self> {
-        (!v.is_nan()).then_some(v)
-    }
-}
-
-fn convert_as<T: Sample>(bytes: &[u8], stride: usize, nodata: Option<f64>, out: &mut [f32]) {
-    let pixel_bytes = T::SIZE * stride;
-    let pixels = bytes.chunks_exact(pixel_bytes);
-    match nodata.and_then(T::exact) {
-        Some(nd) => out.iter_mut().zip(pixels).for_each(|(o, px)| {
-            let v = T::read(px);
-            *o = if v == nd { f32::NAN } else { v.to_f32() };
-        }),
-        None => out
-            .iter_mut()
-            .zip(pixels)
-            .for_each(|(o, px)| *o = T::read(px).to_f32()),
-    }
-}
-
-/// Band 1 of `bytes` (native-endian samples, `stride` per pixel) into `out`.
-pub(super) fn convert(
-    bytes: &[u8],
-    ty: SampleType,
-    stride: usize,
-    nodata: Option<f64>,
-    out: &mut [f32],
-) {
-    match ty {
-        SampleType::U8 => convert_as::<u8>(bytes, stride, nodata, out),
-        SampleType::I8 => convert_as::<i8>(bytes, stride, nodata, out),
-        SampleType::U16 => convert_as::<u16>(bytes, stride, nodata, out),
-        SampleType::I16 => convert_as::<i16>(bytes, stride, nodata, out),
-        SampleType::U32 => convert_as::<u32>(bytes, stride, nodata, out),
-        SampleType::I32 => convert_as::<i32>(bytes, stride, nodata, out),
-        SampleType::F32 => convert_as::<f32>(bytes, stride, nodata, out),
-        SampleType::F64 => convert_as::<f64>(bytes, stride, nodata, out),
     }
 }

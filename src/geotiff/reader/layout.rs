@@ -10,6 +10,7 @@ use tiff::decoder::{ifd::Value, ChunkType, Decoder};
 use tiff::tags::Tag;
 
 use super::decode::tiff_error;
+use super::direct::DirectCodec;
 use super::{GeoTiffError, GeoTiffInfo, SampleType};
 use crate::geotiff::geokeys::{self, tag, GeoKeys};
 
@@ -23,6 +24,10 @@ pub(super) struct BlockLayout {
     pub blocks_across: u64,
     /// Compressed size of each block of band 1, row-major (0 = sparse block).
     pub byte_counts: Vec<u64>,
+    /// File offset of each block of band 1, row-major.
+    pub offsets: Vec<u64>,
+    /// Set when the blocks decode without the `tiff` crate (see `direct`).
+    pub direct: Option<DirectCodec>,
     /// Samples interleaved per pixel in a decoded block (1 for planar files).
     pub samples_in_block: usize,
     pub sample_type: SampleType,
@@ -199,6 +204,7 @@ pub(super) fn parse<R: Read + Seek>(
     d: &mut Decoder<R>,
     file_len: u64,
     bigtiff: bool,
+    little_endian: bool,
 ) -> Result<ParsedTiff, GeoTiffError> {
     let p = || path.to_path_buf();
     let terr = |e| tiff_error(path, e);
@@ -303,6 +309,12 @@ pub(super) fn parse<R: Read + Seek>(
 
     let georef = read_georeferencing(path, d)?;
     let nodata = ascii_tag(path, d, tag::GDAL_NODATA)?.and_then(|s| geokeys::parse_gdal_nodata(&s));
+    let samples_in_block = if planar == 2 {
+        1
+    } else {
+        usize::from(band_count)
+    };
+    let float32 = sample_type == SampleType::F32;
     let layout = BlockLayout {
         width,
         height,
@@ -310,11 +322,15 @@ pub(super) fn parse<R: Read + Seek>(
         block_height,
         blocks_across,
         byte_counts,
-        samples_in_block: if planar == 2 {
-            1
-        } else {
-            usize::from(band_count)
-        },
+        offsets,
+        direct: DirectCodec::for_tags(
+            compression,
+            predictor,
+            float32,
+            samples_in_block,
+            little_endian,
+        ),
+        samples_in_block,
         sample_type,
     };
     let info = GeoTiffInfo {
