@@ -69,24 +69,37 @@ impl<'a> TileRenderer<'a> {
         let y_top = g[3] - row0 as f64 * gsd;
         let bounds = [x0, y_top - h as f64 * gsd, x0 + w as f64 * gsd, y_top];
         let slots = self.index.touching(bounds);
-        let mut samples = vec![f32::NAN; slots.len() * w * h];
-        for (k, &slot) in slots.iter().enumerate() {
-            let out = &mut samples[k * w * h..(k + 1) * w * h];
-            self.sample_dsm(slot, x0, y_top, w, h, out)?;
+        // Each DSM is sampled over its own window only, and the valid values are
+        // gathered per pixel (in slot order): memory follows the data in the
+        // tile, not the number of DSMs touching it times the tile's area.
+        let mut windows = Vec::with_capacity(slots.len());
+        for &slot in &slots {
+            if let Some(window) = self.sample_dsm(slot, x0, y_top, w, h)? {
+                windows.push(window);
+            }
         }
+        let mut start = vec![0usize; w * h + 1];
+        for window in &windows {
+            window.for_each_valid(w, |p, _| start[p + 1] += 1);
+        }
+        for p in 0..w * h {
+            start[p + 1] += start[p];
+        }
+        let mut flat = vec![0f32; start[w * h]];
+        let mut next = start.clone();
+        for window in &windows {
+            window.for_each_valid(w, |p, v| {
+                flat[next[p]] = v;
+                next[p] += 1;
+            });
+        }
+        drop(windows);
         let mut data = vec![f32::NAN; t * t];
-        let mut values = Vec::with_capacity(slots.len());
         let mut valid_pixels = 0;
         for r in 0..h {
             for c in 0..w {
-                values.clear();
                 let p = r * w + c;
-                values.extend(
-                    (0..slots.len())
-                        .map(|k| samples[k * w * h + p])
-                        .filter(|v| !v.is_nan()),
-                );
-                let v = self.method.combine(&mut values);
+                let v = self.method.combine(&mut flat[start[p]..start[p + 1]]);
                 valid_pixels += u64::from(!v.is_nan());
                 data[r * t + c] = v;
             }
@@ -94,8 +107,9 @@ impl<'a> TileRenderer<'a> {
         Ok(RenderedTile { data, valid_pixels })
     }
 
-    /// Corrected heights of one DSM at the pixel centres of a w x h window whose
-    /// top-left corner is (x0, y_top); only the part under its footprint is read.
+    /// Corrected heights of one DSM at the pixel centres of the part of a w x h
+    /// window (top-left corner at (x0, y_top)) under its footprint; None when
+    /// its footprint misses the window.
     fn sample_dsm(
         &self,
         slot: usize,
@@ -103,8 +117,7 @@ impl<'a> TileRenderer<'a> {
         y_top: f64,
         w: usize,
         h: usize,
-        out: &mut [f32],
-    ) -> Result<(), FuseError> {
+    ) -> Result<Option<Window>, FuseError> {
         let placed = &self.placed[slot];
         let gsd = self.grid.gsd_m();
         let b = placed.corrected_bounds;
@@ -113,22 +126,50 @@ impl<'a> TileRenderer<'a> {
         let r_lo = (((y_top - b[3]) / gsd).floor().max(0.0) as usize).min(h);
         let r_hi = (((y_top - b[1]) / gsd).ceil().max(0.0) as usize).min(h);
         if c_lo >= c_hi || r_lo >= r_hi {
-            return Ok(());
+            return Ok(None);
         }
         let grid = StoreGrid::new(self.store, self.cache, placed.index, self.levels[slot])?;
         let pose = &self.poses[placed.index];
         let mut surface = CorrectedSurface::new(grid, pose, placed.z_start_m);
+        let mut values = Vec::with_capacity((c_hi - c_lo) * (r_hi - r_lo));
         for r in r_lo..r_hi {
             let y = y_top - (r as f64 + 0.5) * gsd;
             for c in c_lo..c_hi {
                 let x = x0 + (c as f64 + 0.5) * gsd;
-                out[r * w + c] = surface.height_at(x, y) as f32;
+                values.push(surface.height_at(x, y) as f32);
             }
         }
         if let Some(error) = surface.grid_mut().take_chunk_error() {
             return Err(self.store.chunk_error(placed.index, error).into());
         }
-        Ok(())
+        Ok(Some(Window {
+            cols: c_lo..c_hi,
+            rows: r_lo..r_hi,
+            values,
+        }))
+    }
+}
+
+/// One DSM's corrected heights over its part of an output tile.
+struct Window {
+    cols: std::ops::Range<usize>,
+    rows: std::ops::Range<usize>,
+    /// Row-major over `rows` x `cols`; NaN where the DSM has no data.
+    values: Vec<f32>,
+}
+
+impl Window {
+    /// Calls `f(pixel index in a tile of width w, value)` for every valid value.
+    fn for_each_valid(&self, w: usize, mut f: impl FnMut(usize, f32)) {
+        let width = self.cols.len();
+        for (k, r) in self.rows.clone().enumerate() {
+            let row = &self.values[k * width..(k + 1) * width];
+            for (c, &v) in self.cols.clone().zip(row) {
+                if !v.is_nan() {
+                    f(r * w + c, v);
+                }
+            }
+        }
     }
 }
 
