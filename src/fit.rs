@@ -14,7 +14,6 @@
 //! says what the final fit knows (6x6 information, per-axis sigmas, degenerate axes).
 
 pub mod information;
-mod split;
 
 pub use information::{fit_information, Axis, DegeneracyRule, FitInformation};
 

@@ -287,7 +287,6 @@ pub fn fit_information(
     let (eig, keep) = constrained_directions(&eq, model, rule);
     let scaled = sandwich(&eig, &keep, &restrict(&eq.clustered, model));
     let independent = sandwich(&eig, &keep, &restrict(&eq.meat, model));
-    let scaled = scaled * super::split::split_half_factor(corrs, &eq, &eig, &keep, &scaled);
     // (rx, ry, rz, tx, ty, tz) scaled -> (x, y, z, roll, pitch, yaw) physical
     let mut to_physical = Matrix6::zeros();
     for k in 0..3 {
