@@ -2,27 +2,12 @@
 //! poses files written elsewhere, re-runs that keep finished work, outputs that
 //! are not silently replaced.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Output;
 
 use serde_json::{json, Value};
 
-use crate::util::{bin, fixtures, ok, text};
-
-fn run(args: &[&dyn AsRef<std::ffi::OsStr>]) -> Output {
-    let mut c = bin();
-    for a in args {
-        c.arg(a);
-    }
-    c.output().unwrap()
-}
-
-/// chain4 ingested into `dir/c.zarr`.
-fn chain4_store(dir: &Path) -> PathBuf {
-    let store = dir.join("c.zarr");
-    crate::util::ingest(&[fixtures().join("synth/chain4")], &store);
-    store
-}
+use crate::util::{bin, chain4_store, fixtures, ok, run, text};
 
 /// The truth's matrices as `{"poses": [{"id", "matrix_world", <extra>}]}` and
 /// nothing else (`lean`), or as a complete poses.json.

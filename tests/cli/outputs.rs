@@ -5,28 +5,12 @@
 
 use std::fs::File;
 use std::path::{Path, PathBuf};
-use std::process::Output;
 
 use dsmstream::geotiff::reader::{GeoTiffReader, SampleType};
 use tiff::decoder::Decoder;
 use tiff::tags::Tag;
 
-use crate::util::{bin, fixtures, ok, text};
-
-fn run(args: &[&dyn AsRef<std::ffi::OsStr>]) -> Output {
-    let mut c = bin();
-    for a in args {
-        c.arg(a);
-    }
-    c.output().unwrap()
-}
-
-/// chain4 ingested into `dir/c.zarr`.
-fn chain4_store(dir: &Path) -> PathBuf {
-    let store = dir.join("c.zarr");
-    crate::util::ingest(&[fixtures().join("synth/chain4")], &store);
-    store
-}
+use crate::util::{bin, chain4_store, fixtures, ok, run, text};
 
 /// (reader, every pixel, NaN = no-data).
 fn read(path: &Path) -> (GeoTiffReader, Vec<f32>) {

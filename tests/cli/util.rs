@@ -69,3 +69,19 @@ pub fn dsmgen_tiles(args: &[&str], out: &Path) {
         text(&gen.stderr)
     );
 }
+
+/// `dsmstream` with `args`, its output.
+pub fn run(args: &[&dyn AsRef<std::ffi::OsStr>]) -> Output {
+    let mut c = bin();
+    for a in args {
+        c.arg(a);
+    }
+    c.output().unwrap()
+}
+
+/// The chain4 fixture ingested into `dir/c.zarr`.
+pub fn chain4_store(dir: &Path) -> PathBuf {
+    let store = dir.join("c.zarr");
+    ingest(&[fixtures().join("synth/chain4")], &store);
+    store
+}
