@@ -69,9 +69,10 @@ pub(super) fn mahalanobis_residuals(
 
 pub(super) type Round = (Vec<usize>, Vec<(usize, f64)>);
 
-/// This round's outliers: every edge over the limit (the reweighted solve has
-/// already kept them from spreading); those that would split a component are
-/// down-weighted instead, the least bad first.
+/// This round's outliers: each edge over the limit that is the worst over the
+/// limit at both its nodes (an edge beside a worse one may only be bent by it:
+/// it is judged again next round, after the worse one is gone); those that would
+/// split a component are down-weighted instead, the least bad first.
 pub(super) fn select(
     graph: &PoseGraph,
     active: &[f64],
@@ -97,7 +98,17 @@ pub(super) fn select(
         .copied()
         .filter(|&k| bad(k) > 1.0 && active[k] >= 0.999)
         .collect();
-    outliers.sort_by(|&a, &b| bad(b).total_cmp(&bad(a)));
+    let mut worst_at = vec![0.0f64; graph.n];
+    for &k in &outliers {
+        let e = &graph.edges[k];
+        worst_at[e.i] = worst_at[e.i].max(bad(k));
+        worst_at[e.j] = worst_at[e.j].max(bad(k));
+    }
+    outliers.retain(|&k| {
+        let e = &graph.edges[k];
+        bad(k) >= worst_at[e.i] && bad(k) >= worst_at[e.j]
+    });
+    outliers.sort_by(|&a, &b| bad(b).total_cmp(&bad(a)).then(a.cmp(&b)));
     let chosen = outliers;
     let mut sets = UnionFind::new(graph.n);
     for &k in &live {

@@ -23,6 +23,7 @@
 use super::block::{BlockEdge, BlockSystem};
 use super::consistency::{active_components, mahalanobis_residuals, select, variance_factor};
 use super::covariance::{node_sigmas, CovarianceMethod, NodeSigma};
+use super::joint::joint_refine;
 use super::robust::rotation_vector;
 use super::{average, AveragingError, AveragingOptions, AveragingResult};
 use crate::fit::FitInformation;
@@ -107,6 +108,9 @@ pub struct InformedOptions {
     /// ... and above this times the median Mahalanobis residual.
     pub outlier_k: f64,
     pub max_rounds: usize,
+    /// Joint Gauss-Newton steps over rotations and translations after each
+    /// decoupled refinement ([`super::joint`]); 0 keeps the decoupled solution.
+    pub joint_steps: usize,
     /// Each edge's information is floored at this fraction of the median
     /// information (isotropic), so a node seen only along some axes stays solvable.
     pub floor_of_median: f64,
@@ -125,6 +129,7 @@ impl Default for InformedOptions {
             outlier_sigma: 5.0,
             outlier_k: 5.0,
             max_rounds: 10,
+            joint_steps: 2,
             floor_of_median: 1e-6,
             covariance: CovarianceMethod::default(),
             weak_sigma_m: 1.0,
@@ -196,11 +201,7 @@ pub fn average_informed(
     // solution, every edge readmitted: the scalar rounds may have dropped good ones.
     let mut mahalanobis = mahalanobis_residuals(graph, &omegas, &rotations, &translations);
     for _ in 0..options.max_rounds {
-        let weights: Vec<f64> = mahalanobis
-            .iter()
-            .zip(&usable)
-            .map(|(&(r, t), &u)| u / (1.0 + (r.max(t) / options.outlier_sigma).powi(2)))
-            .collect();
+        let weights = cauchy_weights(&mahalanobis, &usable, options.outlier_sigma);
         iterations += refine(
             graph,
             &omegas,
@@ -211,33 +212,56 @@ pub fn average_informed(
         );
         mahalanobis = mahalanobis_residuals(graph, &omegas, &rotations, &translations);
     }
-    // Then hard decisions, full weight for the rest, and rounds as in `robust`.
-    let mut active = usable;
+    // Then hard decisions, a few edges per round (see `select`), the undecided
+    // edges still Cauchy-weighted so that outliers not yet dropped do not bend
+    // the poses; an edge dropped while a worse one bent them comes back (once)
+    // when it fits again. When nothing changes, the kept edges are solved at
+    // full weight and judged once more.
+    let mut active = usable.clone();
+    let mut readmitted = vec![false; graph.edges.len()];
+    let mut full_weight = false;
     result.dropped_edges.clear();
     result.downweighted_edges.clear();
-    for round in 0..=options.max_rounds {
+    for _ in 0..4 * options.max_rounds {
         let (dropped, downweighted) = select(graph, &active, &mahalanobis, options);
-        if dropped.is_empty() && downweighted.is_empty() && round > 0 {
+        let back: Vec<usize> = (0..graph.edges.len())
+            .filter(|&k| active[k] == 0.0 && usable[k] > 0.0 && !readmitted[k])
+            .filter(|&k| mahalanobis[k].0.max(mahalanobis[k].1) < options.outlier_sigma)
+            .collect();
+        let changed = !(dropped.is_empty() && downweighted.is_empty() && back.is_empty());
+        if !changed && full_weight {
             break;
+        }
+        for &k in &back {
+            active[k] = usable[k];
+            readmitted[k] = true;
         }
         for &k in &dropped {
             active[k] = 0.0;
-            result.dropped_edges.push(k);
         }
         for &(k, f) in &downweighted {
             active[k] *= f;
             result.downweighted_edges.push(k);
         }
+        full_weight = !changed;
+        let weights: Vec<f64> = if full_weight {
+            active.clone()
+        } else {
+            cauchy_weights(&mahalanobis, &active, options.outlier_sigma)
+        };
         iterations += refine(
             graph,
             &omegas,
-            &active,
+            &weights,
             options,
             &mut rotations,
             &mut translations,
         );
         mahalanobis = mahalanobis_residuals(graph, &omegas, &rotations, &translations);
     }
+    result.dropped_edges = (0..graph.edges.len())
+        .filter(|&k| active[k] == 0.0 && usable[k] > 0.0)
+        .collect();
     result.dropped_edges.sort_unstable();
     result.dropped_edges.dedup();
     result.downweighted_edges.sort_unstable();
@@ -278,6 +302,15 @@ pub fn average_informed(
         refine_iterations: iterations,
         variance_factor: factor,
     })
+}
+
+/// active / (1 + (d / scale)^2), d the larger Mahalanobis residual of the edge.
+fn cauchy_weights(mahalanobis: &[(f64, f64)], active: &[f64], scale: f64) -> Vec<f64> {
+    mahalanobis
+        .iter()
+        .zip(active)
+        .map(|(&(r, t), &a)| a / (1.0 + (r.max(t) / scale).powi(2)))
+        .collect()
 }
 
 /// Each edge's information as one 6x6 block-diagonal (rotation top-left), times the
@@ -415,6 +448,18 @@ fn refine(
     let (t, report) = system.solve(&system.preconditioner(), &rhs, tol, max_iter);
     iterations += report.iterations;
     translations.copy_from_slice(&t);
+    if options.joint_steps > 0 {
+        let joint = joint_refine(
+            graph,
+            omegas,
+            active,
+            rotations,
+            translations,
+            options.joint_steps,
+            max_iter,
+        );
+        iterations += joint.cg_iterations;
+    }
     iterations
 }
 

@@ -18,6 +18,7 @@ mod consistency;
 mod covariance;
 mod gauge;
 mod informed;
+mod joint;
 mod laplacian;
 mod multilevel;
 mod robust;

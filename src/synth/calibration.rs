@@ -25,6 +25,10 @@ pub struct EdgeError {
     pub reference: String,
     pub moving: String,
     pub status: Option<IcpStatus>,
+    /// The pair's overlap score s_ij, final RMSE (m) and ICP iterations.
+    pub overlap: f64,
+    pub rmse_m: f64,
+    pub iterations: usize,
     /// Error per axis: metres for x, y, z at the centroid, degrees for roll, pitch, yaw.
     pub error: [f64; 6],
     /// Reported one-sigma per axis (same units); None where the fit held the axis
@@ -85,6 +89,9 @@ impl Truth {
             reference: record.reference.clone(),
             moving: record.moving.clone(),
             status: record.status,
+            overlap: record.overlap,
+            rmse_m: record.rmse_m,
+            iterations: record.iterations,
             error,
             sigma,
         })

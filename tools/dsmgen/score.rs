@@ -29,6 +29,9 @@ pub struct ScoreArgs {
     /// List the N pairs with the largest |error| / sigma.
     #[arg(long, default_value_t = 5)]
     worst: usize,
+    /// Also write every journaled pair's error and sigma per axis to this TSV file.
+    #[arg(long)]
+    pairs: Option<PathBuf>,
 }
 
 pub fn run(a: ScoreArgs) -> Result<(), String> {
@@ -44,6 +47,9 @@ pub fn run(a: ScoreArgs) -> Result<(), String> {
     } else {
         Vec::new()
     };
+    if let Some(path) = &a.pairs {
+        write_pairs(path, &edges).map_err(|e| format!("{}: {e}", path.display()))?;
+    }
     let per_dsm = truth.per_dsm_error(&poses);
     let pairwise = truth.pairwise_error(&poses);
     let table = calibration(&edges);
@@ -127,6 +133,40 @@ pub fn run(a: ScoreArgs) -> Result<(), String> {
         );
     }
     Ok(())
+}
+
+/// One row per journaled pair: ids, status, overlap, RMSE, iterations, then the
+/// error and the sigma per axis (metres, degrees; empty where held).
+fn write_pairs(path: &PathBuf, edges: &[EdgeError]) -> std::io::Result<()> {
+    use std::fmt::Write as _;
+    let mut text = String::from("reference\tmoving\tstatus\toverlap\trmse_m\titerations");
+    for axis in dsmstream::synth::calibration::AXES {
+        let _ = write!(text, "\terr_{axis}");
+    }
+    for axis in dsmstream::synth::calibration::AXES {
+        let _ = write!(text, "\tsigma_{axis}");
+    }
+    text.push('\n');
+    for e in edges {
+        let status = e.status.map(|s| format!("{s:?}")).unwrap_or_default();
+        let _ = write!(
+            text,
+            "{}\t{}\t{status}\t{:.4}\t{:.4}\t{}",
+            e.reference, e.moving, e.overlap, e.rmse_m, e.iterations
+        );
+        for v in e.error {
+            let _ = write!(text, "\t{v:.6}");
+        }
+        for s in e.sigma {
+            let _ = write!(
+                text,
+                "\t{}",
+                s.map(|s| format!("{s:.6}")).unwrap_or_default()
+            );
+        }
+        text.push('\n');
+    }
+    std::fs::write(path, text)
 }
 
 /// The journaled pairs with a transform, scored against the truth.

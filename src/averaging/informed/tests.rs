@@ -249,3 +249,100 @@ fn anisotropic_edges_and_outliers_recover_the_poses() {
         );
     }
 }
+
+/// The joint Gauss-Newton steps ([`super::super::joint`]) bring poses started
+/// 0.5 deg and 2 m off back to the truth when the edges are exact.
+#[test]
+fn joint_steps_recover_exact_poses_from_a_perturbed_start() {
+    for (width, seed) in [(6, 3), (2, 4), (1, 5)] {
+        let mut case = case(width.max(2), seed, 0.0);
+        if width == 1 {
+            // a chain of five along x: keep only the x-neighbour edges
+            case = case_chain(5, seed);
+        }
+        for e in case.graph.edges.iter_mut() {
+            let m = inverse_rigid(&case.truth[e.i]) * case.truth[e.j];
+            e.set_m_ij(&m);
+        }
+        let omegas = effective_information(&case.information, &InformedOptions::default());
+        let active = vec![1.0; case.graph.edges.len()];
+        let mut rng = SplitMix64::new(seed + 100);
+        let mut rotations: Vec<Matrix3<f64>> = case
+            .truth
+            .iter()
+            .map(|t| {
+                rotation_from_axis_angle(&normal3(&mut rng, 0.5f64.to_radians())) * rotation(t)
+            })
+            .collect();
+        let mut translations: Vec<Vector3<f64>> = case
+            .truth
+            .iter()
+            .map(|t| translation(t) + normal3(&mut rng, 2.0))
+            .collect();
+        super::super::joint::joint_refine(
+            &case.graph,
+            &omegas,
+            &active,
+            &mut rotations,
+            &mut translations,
+            8,
+            10_000,
+        );
+        let mut est: Vec<Matrix4<f64>> = rotations
+            .iter()
+            .zip(&translations)
+            .map(|(r, t)| from_parts(r, t))
+            .collect();
+        let mut truth = case.truth.clone();
+        let members: Vec<usize> = (0..case.graph.n).collect();
+        crate::averaging::fix_gauge(&mut truth, &members, None);
+        crate::averaging::fix_gauge(&mut est, &members, None);
+        for k in 0..case.graph.n {
+            let p = case.positions[k];
+            let shift = apply(&est[k], &apply(&inverse_rigid(&case.truth[k]), &p))
+                - apply(&truth[k], &apply(&inverse_rigid(&case.truth[k]), &p));
+            let rot = rotation_vector(&rotation(&truth[k]).tr_mul(&rotation(&est[k])));
+            assert!(
+                shift.norm() < 1e-6 && rot.norm() < 1e-9,
+                "width {width} node {k}: {shift:?} {rot:?}"
+            );
+        }
+    }
+}
+
+/// A chain of `n` nodes 100 m apart along x, each edge knowing every axis.
+fn case_chain(n: usize, seed: u64) -> Case {
+    let mut rng = SplitMix64::new(seed);
+    let positions: Vec<Vector3<f64>> = (0..n)
+        .map(|k| Vector3::new(k as f64 * 100.0, 0.0, 200.0))
+        .collect();
+    let truth: Vec<Matrix4<f64>> = (0..n)
+        .map(|_| {
+            let r = rotation_from_axis_angle(&normal3(&mut rng, 0.3f64.to_radians()));
+            from_parts(&r, &normal3(&mut rng, 2.0))
+        })
+        .collect();
+    let (mut edges, mut information) = (Vec::new(), Vec::new());
+    for i in 0..n - 1 {
+        let j = i + 1;
+        let centre = (positions[i] + positions[j]) / 2.0;
+        let c_j = apply(&inverse_rigid(&truth[j]), &centre);
+        let m_ij = inverse_rigid(&truth[i]) * truth[j];
+        edges.push(Edge {
+            centre_j: c_j,
+            ..Edge::new(i, j, m_ij, 0.5, 0.1)
+        });
+        information.push(EdgeInformation {
+            rotation: Matrix3::identity() * 1e8,
+            translation: Matrix3::identity() * 1e3,
+            reliable: true,
+        });
+    }
+    Case {
+        graph: PoseGraph { n, edges },
+        information,
+        truth,
+        positions,
+        outliers: Vec::new(),
+    }
+}
