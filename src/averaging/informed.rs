@@ -20,16 +20,15 @@
 //! the translation at the edge's centre (`Edge::centre_j`); DSM rotations are tiny,
 //! so i's and j's axes agree to first order.
 
-use super::block::{BlockEdge, BlockSystem};
 use super::consistency::{active_components, mahalanobis_residuals, select, variance_factor};
 use super::covariance::{node_sigmas, CovarianceMethod, NodeSigma};
-use super::joint::joint_refine;
-use super::robust::rotation_vector;
+use super::joint::joint_node_sigmas;
 use super::{average, AveragingError, AveragingOptions, AveragingResult};
 use crate::fit::FitInformation;
 use crate::graph::{EdgeSigma, PoseGraph};
-use crate::poses::rigid::{from_parts, rotation, rotation_from_axis_angle, translation};
+use crate::poses::rigid::{from_parts, rotation, translation};
 use nalgebra::{Matrix3, Matrix6, Vector3};
+use refine::refine;
 
 /// What one edge knows, about the axes of i's frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -137,6 +136,13 @@ impl Default for InformedOptions {
         }
     }
 }
+
+/// Up to this many nodes the pose sigmas come from the joint normal equations
+/// (rotation uncertainty carried into the shifts; exact up to
+/// `CovarianceMethod::exact_max_nodes / 2`, sampled above); larger graphs use
+/// the decoupled covariance (shift given the rotations: an approximation that
+/// understates the shift sigmas of tiles far from well-fixed ones).
+pub const JOINT_COVARIANCE_MAX_NODES: usize = 2000;
 
 /// How well the graph fixes a node.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -277,13 +283,25 @@ pub fn average_informed(
     }
     let rotations: Vec<Matrix3<f64>> = poses.iter().map(rotation).collect();
     let weighted: Vec<Matrix6<f64>> = omegas.iter().zip(&active).map(|(o, &a)| o * a).collect();
-    let mut sigma = node_sigmas(
-        graph,
-        &weighted,
-        &rotations,
-        &components,
-        options.covariance,
-    );
+    let translations: Vec<Vector3<f64>> = poses.iter().map(translation).collect();
+    let mut sigma = if options.joint_steps > 0 && graph.n <= JOINT_COVARIANCE_MAX_NODES {
+        joint_node_sigmas(
+            graph,
+            &weighted,
+            &rotations,
+            &translations,
+            &components,
+            options.covariance,
+        )
+    } else {
+        node_sigmas(
+            graph,
+            &weighted,
+            &rotations,
+            &components,
+            options.covariance,
+        )
+    };
     let factor = variance_factor(graph, &mahalanobis, &active, &components);
     let scale = factor.unwrap_or(1.0).max(1.0).sqrt();
     for s in &mut sigma {
@@ -371,104 +389,6 @@ fn scalar_graph(graph: &PoseGraph, omegas: &[Matrix6<f64>]) -> PoseGraph {
     out
 }
 
-/// Block edges of the rotations (at the current rotations) or of the translations.
-fn block_edges(
-    graph: &PoseGraph,
-    omegas: &[Matrix6<f64>],
-    active: &[f64],
-    rotations: &[Matrix3<f64>],
-    rotation_part: bool,
-) -> Vec<BlockEdge> {
-    graph
-        .edges
-        .iter()
-        .zip(omegas)
-        .zip(active)
-        .filter(|(_, &a)| a > 0.0)
-        .map(|((e, o), &a)| {
-            let (r_i, r_j) = (rotations[e.i], rotations[e.j]);
-            if rotation_part {
-                let r_rel = r_i.tr_mul(&r_j);
-                let r0 = rotation_vector(&e.rotation().tr_mul(&r_rel));
-                let omega = o.fixed_view::<3, 3>(0, 0).into_owned() * a;
-                BlockEdge {
-                    i: e.i,
-                    j: e.j,
-                    b: r_rel.transpose(),
-                    omega,
-                    r0,
-                }
-            } else {
-                let omega = r_i * o.fixed_view::<3, 3>(3, 3).into_owned() * r_i.transpose() * a;
-                let r0 = r_j * e.centre_j - r_i * e.apply(&e.centre_j);
-                BlockEdge {
-                    i: e.i,
-                    j: e.j,
-                    b: Matrix3::identity(),
-                    omega,
-                    r0,
-                }
-            }
-        })
-        .collect()
-}
-
-/// Two Gauss-Newton steps on the rotations, then the translations; CG iterations.
-fn refine(
-    graph: &PoseGraph,
-    omegas: &[Matrix6<f64>],
-    active: &[f64],
-    options: &InformedOptions,
-    rotations: &mut [Matrix3<f64>],
-    translations: &mut [Vector3<f64>],
-) -> usize {
-    let mut iterations = 0;
-    let (tol, max_iter) = (1e-10, options.base.cg_max_iter);
-    for _ in 0..2 {
-        let edges = block_edges(graph, omegas, active, rotations, true);
-        let system = BlockSystem {
-            n: graph.n,
-            prior: tiny_prior(&edges),
-            edges,
-        };
-        let rhs = system.gather(|_, e| -(e.omega * e.r0));
-        let (delta, report) = system.solve(&system.preconditioner(), &rhs, tol, max_iter);
-        iterations += report.iterations;
-        for (r, d) in rotations.iter_mut().zip(&delta) {
-            *r *= rotation_from_axis_angle(d);
-        }
-    }
-    let edges = block_edges(graph, omegas, active, rotations, false);
-    let system = BlockSystem {
-        n: graph.n,
-        prior: tiny_prior(&edges),
-        edges,
-    };
-    let rhs = system.gather(|_, e| -(e.omega * e.r0));
-    let (t, report) = system.solve(&system.preconditioner(), &rhs, tol, max_iter);
-    iterations += report.iterations;
-    translations.copy_from_slice(&t);
-    if options.joint_steps > 0 {
-        let joint = joint_refine(
-            graph,
-            omegas,
-            active,
-            rotations,
-            translations,
-            options.joint_steps,
-            max_iter,
-        );
-        iterations += joint.cg_iterations;
-    }
-    iterations
-}
-
-/// 1e-9 of the mean information: fixes the free motions without biasing the rest.
-fn tiny_prior(edges: &[BlockEdge]) -> f64 {
-    let mean = edges.iter().map(|e| e.omega.trace() / 3.0).sum::<f64>() / edges.len().max(1) as f64;
-    (1e-9 * mean).max(f64::MIN_POSITIVE)
-}
-
 fn node_status(
     graph: &PoseGraph,
     information: &[EdgeInformation],
@@ -500,5 +420,6 @@ fn node_status(
         .collect()
 }
 
+mod refine;
 #[cfg(test)]
 mod tests;

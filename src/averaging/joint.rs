@@ -24,6 +24,9 @@
 
 use nalgebra::{Matrix3, Matrix6, Vector3, Vector6};
 
+mod covariance;
+pub(crate) use covariance::joint_node_sigmas;
+
 use super::robust::rotation_vector;
 use crate::geo::rigid::rotation_from_axis_angle;
 use crate::graph::PoseGraph;
