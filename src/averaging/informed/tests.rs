@@ -5,7 +5,8 @@
 use super::*;
 use crate::averaging::synthetic::{normal3, SplitMix64};
 use crate::graph::Edge;
-use crate::poses::rigid::{apply, inverse_rigid};
+use crate::averaging::robust::rotation_vector;
+use crate::poses::rigid::{apply, inverse_rigid, rotation_from_axis_angle};
 use nalgebra::Matrix4;
 
 struct Case {
