@@ -120,7 +120,8 @@ impl InitialPoses {
                     (x, centre_of(store, &p.id))
                 })
                 .collect();
-            let anchored = anchor.and_then(|a| members.iter().position(|&k| poses.poses[k].id == a));
+            let anchored =
+                anchor.and_then(|a| members.iter().position(|&k| poses.poses[k].id == a));
             let g = match anchored {
                 Some(at) => offsets[at].0,
                 None => mean_motion(&offsets),
@@ -152,7 +153,11 @@ fn mean_motion(motions: &[(Matrix4<f64>, Vector3<f64>)]) -> Matrix4<f64> {
     let o = motions.iter().map(|(_, c)| c).sum::<Vector3<f64>>() / n;
     let r_sum: Matrix3<f64> = motions.iter().map(|(x, _)| rotation(x)).sum();
     let r = project_to_so3(&(r_sum / n));
-    let moved = motions.iter().map(|(x, _)| apply(x, &o) - o).sum::<Vector3<f64>>() / n;
+    let moved = motions
+        .iter()
+        .map(|(x, _)| apply(x, &o) - o)
+        .sum::<Vector3<f64>>()
+        / n;
     // G p = R (p - o) + o + moved
     from_parts(&r, &(o + moved - r * o))
 }
@@ -184,7 +189,10 @@ mod tests {
         let initial = InitialPoses::read(&path).unwrap();
         assert_eq!(initial.matrix("a"), Matrix4::identity());
         assert_eq!(initial.matrix("b")[(0, 3)], -20.0);
-        assert_eq!(initial.content_hash, crate::view::content_hash(text.as_bytes()));
+        assert_eq!(
+            initial.content_hash,
+            crate::view::content_hash(text.as_bytes())
+        );
         let missing = InitialPoses::read(&dir.path().join("none.json")).unwrap_err();
         assert!(missing.contains("none.json"), "{missing}");
     }

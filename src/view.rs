@@ -169,10 +169,7 @@ mod tests {
 
     fn pyramid() -> MemPyramid {
         let gt = GeoTransform::north_up(1000.0, 2000.0, 1.0, 1.0);
-        MemPyramid::build(
-            MemGrid::from_fn(8, 8, gt, |c, r| (10 * r + c) as f32),
-            4,
-        )
+        MemPyramid::build(MemGrid::from_fn(8, 8, gt, |c, r| (10 * r + c) as f32), 4)
     }
 
     #[test]
@@ -196,7 +193,10 @@ mod tests {
         assert_eq!(level.get(1, 3), 31.5);
         assert!(level.get(2, 3).is_nan(), "moved onto x = 1004..1005");
         let unmasked = PairInputs::default();
-        assert_eq!(unmasked.view(pyramid(), 0).open_level(0).unwrap().get(7, 7), 77.0);
+        assert_eq!(
+            unmasked.view(pyramid(), 0).open_level(0).unwrap().get(7, 7),
+            77.0
+        );
     }
 
     #[test]

@@ -193,7 +193,9 @@ mod tests {
         assert!(!o.get(2, 0) && !o.get(3, 0) && !o.get(2, 1));
         // all stable but cell (0, 0): its overview cell has 3 of 4 stable children
         let mut one = BitRaster::new(m.geotransform, 8, 8);
-        (0..64).filter(|k| *k != 0).for_each(|k| one.set(k % 8, k / 8));
+        (0..64)
+            .filter(|k| *k != 0)
+            .for_each(|k| one.set(k % 8, k / 8));
         assert_eq!(one.overview().count(), 16);
     }
 

@@ -76,7 +76,10 @@ fn geojson_polygons_are_rasterised_on_the_finest_dsm_lattice() {
     std::fs::write(&path, text).unwrap();
     let mask = StableMask::load(&path, &target()).unwrap();
     let l0 = &mask.pyramid.levels[0];
-    assert_eq!((l0.geotransform.gsd_x(), l0.width, l0.height), (0.5, 64, 128));
+    assert_eq!(
+        (l0.geotransform.gsd_x(), l0.width, l0.height),
+        (0.5, 64, 128)
+    );
     assert_eq!(l0.count(), 64 * 128);
     let lookup = mask.lookup(&target().finest);
     assert!(lookup.is_stable(63, 0) && !lookup.is_stable(64, 0));
@@ -102,7 +105,10 @@ fn masks_that_cannot_apply_are_refused() {
     )
     .unwrap();
     let err = StableMask::load(&far, &target()).unwrap_err().to_string();
-    assert!(err.contains("far.json") && err.contains("cover none"), "{err}");
+    assert!(
+        err.contains("far.json") && err.contains("cover none"),
+        "{err}"
+    );
     let shp = dir.path().join("mask.shp");
     std::fs::write(&shp, "x").unwrap();
     let err = StableMask::load(&shp, &target()).unwrap_err().to_string();
