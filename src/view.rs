@@ -94,11 +94,12 @@ impl<P: Pyramid> Pyramid for ViewedPyramid<'_, P> {
         let g = inner.geotransform().0;
         let s = &self.shift_m;
         let geotransform = GeoTransform([g[0] + s.x, g[1], g[2], g[3] + s.y, g[4], g[5]]);
+        let (width, height) = (inner.width(), inner.height());
         Ok(ViewedGrid {
             inner,
             geotransform,
             dz_m: s.z as f32,
-            lookup: self.mask.map(|m| m.lookup(&geotransform)),
+            lookup: self.mask.map(|m| m.lookup(&geotransform, width, height)),
         })
     }
 }
@@ -123,12 +124,11 @@ impl<G: Grid> Grid for ViewedGrid<'_, G> {
     }
     #[inline]
     fn get(&mut self, col: i64, row: i64) -> f32 {
-        if let Some(l) = &self.lookup {
-            if !l.is_stable(col, row) {
-                return f32::NAN;
-            }
+        let h = self.inner.get(col, row);
+        match &self.lookup {
+            Some(l) if !h.is_nan() && !l.is_stable(col, row) => f32::NAN,
+            _ => h + self.dz_m,
         }
-        self.inner.get(col, row) + self.dz_m
     }
     fn take_error(&mut self) -> Option<GridError> {
         self.inner.take_error()

@@ -139,9 +139,9 @@ impl StableMask {
         })
     }
 
-    /// The look-up of the pixels of a raster placed by `pixels`.
-    pub fn lookup(&self, pixels: &GeoTransform) -> MaskLookup<'_> {
-        self.pyramid.lookup(pixels)
+    /// The look-up of the pixels of a `width` x `height` raster placed by `pixels`.
+    pub fn lookup(&self, pixels: &GeoTransform, width: i64, height: i64) -> MaskLookup<'_> {
+        self.pyramid.lookup(pixels, width, height)
     }
 
     /// Stable cells of level 0 over all its cells.

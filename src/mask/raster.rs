@@ -105,8 +105,9 @@ impl BitPyramid {
         BitPyramid { levels }
     }
 
-    /// The look-up of the pixels of a raster placed by `pixels` (north-up).
-    pub fn lookup(&self, pixels: &GeoTransform) -> MaskLookup<'_> {
+    /// The look-up of the pixels of a `width` x `height` raster placed by
+    /// `pixels` (north-up).
+    pub fn lookup(&self, pixels: &GeoTransform, width: i64, height: i64) -> MaskLookup<'_> {
         let fits = |r: &BitRaster| {
             r.geotransform.gsd_x() >= pixels.gsd_x() * (1.0 - 1e-9)
                 && r.geotransform.gsd_y() >= pixels.gsd_y() * (1.0 - 1e-9)
@@ -119,40 +120,51 @@ impl BitPyramid {
         let (m, p) = (&raster.geotransform.0, &pixels.0);
         MaskLookup {
             raster,
-            col_origin: (p[0] - m[0]) / m[1],
-            col_per_pixel: p[1] / m[1],
-            row_origin: (p[3] - m[3]) / m[5],
-            row_per_pixel: p[5] / m[5],
+            cols: spans((p[0] - m[0]) / m[1], p[1] / m[1], width),
+            rows: spans((p[3] - m[3]) / m[5], p[5] / m[5], height),
         }
     }
-}
-
-/// Whether pixels of one raster are stable: pixel (col, row) covers mask cells
-/// [origin + col * per_pixel, origin + (col + 1) * per_pixel) on each axis.
-#[derive(Clone, Copy)]
-pub struct MaskLookup<'a> {
-    raster: &'a BitRaster,
-    col_origin: f64,
-    col_per_pixel: f64,
-    row_origin: f64,
-    row_per_pixel: f64,
 }
 
 /// A pixel's edge is pulled in by this fraction, so that a pixel whose edge
 /// lies on a cell edge (the same lattice) does not touch the next cell.
 const EDGE_EPS: f64 = 1e-6;
 
+/// Per pixel k of `count`, the first and last mask cell it covers: pixel k
+/// spans [origin + k * per_pixel, origin + (k + 1) * per_pixel) in cells.
+fn spans(origin: f64, per_pixel: f64, count: i64) -> Vec<(i64, i64)> {
+    (0..count.max(0))
+        .map(|k| {
+            let a = origin + (k as f64 + EDGE_EPS) * per_pixel;
+            let b = origin + (k as f64 + 1.0 - EDGE_EPS) * per_pixel;
+            (a.min(b).floor() as i64, a.max(b).floor() as i64)
+        })
+        .collect()
+}
+
+/// Whether the pixels of one raster are stable: the mask cells each column
+/// and each row covers, computed once.
+#[derive(Clone)]
+pub struct MaskLookup<'a> {
+    raster: &'a BitRaster,
+    cols: Vec<(i64, i64)>,
+    rows: Vec<(i64, i64)>,
+}
+
 impl MaskLookup<'_> {
-    /// True when every mask cell under the pixel is stable.
+    /// True when every mask cell under the pixel is stable (false outside
+    /// the raster the look-up was made for).
     #[inline]
     pub fn is_stable(&self, col: i64, row: i64) -> bool {
-        let span = |origin: f64, per: f64, k: i64| {
-            let a = origin + (k as f64 + EDGE_EPS) * per;
-            let b = origin + (k as f64 + 1.0 - EDGE_EPS) * per;
-            (a.min(b).floor() as i64, a.max(b).floor() as i64)
+        let (Some(&(c0, c1)), Some(&(r0, r1))) = (
+            usize::try_from(col).ok().and_then(|c| self.cols.get(c)),
+            usize::try_from(row).ok().and_then(|r| self.rows.get(r)),
+        ) else {
+            return false;
         };
-        let (c0, c1) = span(self.col_origin, self.col_per_pixel, col);
-        let (r0, r1) = span(self.row_origin, self.row_per_pixel, row);
+        if c0 == c1 && r0 == r1 {
+            return self.raster.get(c0, r0);
+        }
         (r0..=r1).all(|r| (c0..=c1).all(|c| self.raster.get(c, r)))
     }
 }
@@ -203,15 +215,17 @@ mod tests {
     fn a_pixel_is_stable_only_when_every_cell_under_it_is() {
         let pyramid = BitPyramid::build(block_mask());
         // the same lattice: exact per pixel
-        let same = pyramid.lookup(&GeoTransform::north_up(100.0, 208.0, 1.0, 1.0));
+        let same = pyramid.lookup(&GeoTransform::north_up(100.0, 208.0, 1.0, 1.0), 8, 8);
         assert!(same.is_stable(3, 0) && !same.is_stable(4, 0) && same.is_stable(4, 4));
         assert!(!same.is_stable(-1, 5) && !same.is_stable(8, 5), "outside");
+        let wide = pyramid.lookup(&GeoTransform::north_up(100.0, 208.0, 1.0, 1.0), 9, 8);
+        assert!(!wide.is_stable(8, 5), "outside the mask");
         // half-pixel offset 2 m pixels: pixel 1 covers cells 3..5 and touches the block
-        let offset = pyramid.lookup(&GeoTransform::north_up(101.0, 208.0, 2.0, 2.0));
+        let offset = pyramid.lookup(&GeoTransform::north_up(101.0, 208.0, 2.0, 2.0), 4, 4);
         assert!(offset.is_stable(0, 0) && !offset.is_stable(1, 0));
         assert!(offset.is_stable(1, 2));
         // finer pixels than the mask
-        let fine = pyramid.lookup(&GeoTransform::north_up(100.0, 208.0, 0.25, 0.25));
+        let fine = pyramid.lookup(&GeoTransform::north_up(100.0, 208.0, 0.25, 0.25), 32, 32);
         assert!(fine.is_stable(15, 0) && !fine.is_stable(16, 0) && fine.is_stable(16, 16));
     }
 }

@@ -42,7 +42,7 @@ fn a_geotiff_mask_is_stable_where_non_zero() {
         let mask = StableMask::load(&path, &target()).unwrap();
         assert_eq!(mask.pyramid.levels[0].count(), 31 * 16);
         let dsm = GeoTransform::north_up(500_000.0, 4_800_064.0, 0.5, 0.5);
-        let lookup = mask.lookup(&dsm);
+        let lookup = mask.lookup(&dsm, 128, 128);
         assert!(lookup.is_stable(0, 4) && lookup.is_stable(63, 4));
         assert!(!lookup.is_stable(64, 4), "x = 500032: the zero half");
         assert!(!lookup.is_stable(0, 3), "the NaN row");
@@ -81,7 +81,7 @@ fn geojson_polygons_are_rasterised_on_the_finest_dsm_lattice() {
         (0.5, 64, 128)
     );
     assert_eq!(l0.count(), 64 * 128);
-    let lookup = mask.lookup(&target().finest);
+    let lookup = mask.lookup(&target().finest, 128, 128);
     assert!(lookup.is_stable(63, 0) && !lookup.is_stable(64, 0));
     let other = text.replace(
         r#""type": "FeatureCollection","#,
