@@ -265,7 +265,7 @@ fn shifted_chain(dir: &Path, shift: (f64, f64)) -> (PathBuf, Truth) {
     }
     rewrite(&tiles.join("tile_03.tif"), shift, |_, _, h| h);
     let store = dir.join("s.zarr");
-    ingest(&[tiles.clone()], &store);
+    ingest(std::slice::from_ref(&tiles), &store);
     (store, Truth::load(&tiles))
 }
 
