@@ -346,6 +346,16 @@ fn initial_poses_recover_a_dsm_offset_beyond_the_search_radius() {
     let corner = [(g[0] + shift.0 + 10.0, g[3] + shift.1 - 10.0)];
     let e = error_m(&matrix(&doc["matrix_world"]), &rel_truth, &corner);
     assert!(e < 0.15, "pair --initial: {e} m");
+    // the gauge follows the initial poses: an anchor keeps its initial pose
+    let anchored = dir.path().join("anchored.json");
+    ok(run(&[
+        &"align", &store, &"--out", &anchored, &radius[0], &radius[1], &"--initial", &initial,
+        &"--anchor", &"tile_03",
+    ]));
+    let doc: Value = serde_json::from_str(&std::fs::read_to_string(&anchored).unwrap()).unwrap();
+    let p3 = doc["poses"].as_array().unwrap().iter().find(|p| p["id"] == "tile_03").unwrap();
+    assert!((matrix(&p3["matrix_world"]) - start).amax() < 1e-9, "{}", p3);
+    assert!(chain_error(&anchored, &truth, shift) < 0.15);
     // the journal records the initial poses: another file is refused
     let other = dir.path().join("other.json");
     std::fs::write(&other, r#"{"poses": []}"#).unwrap();
