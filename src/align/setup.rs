@@ -152,3 +152,49 @@ pub fn journal_settings(config: &AlignConfig) -> String {
 pub fn dsm_ids(store: &Store) -> DsmIds {
     DsmIds::new(store.dsms().iter().map(|d| d.id.clone()).collect())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::graph::Weighting;
+    use crate::icp::IcpConfig;
+    use crate::pipeline::PipelineConfig;
+    use crate::poses::GraphKind;
+    use crate::view::PairInputs;
+
+    fn config(inputs: PairInputs) -> AlignConfig {
+        AlignConfig {
+            pipeline: PipelineConfig {
+                threads: 1,
+                icp: IcpConfig::default(),
+                min_overlap: 0.1,
+                inputs,
+            },
+            graph: GraphKind::Full,
+            weights: Weighting::Information,
+            anchor: None,
+            resume: true,
+            output: "poses.json".into(),
+            sharding: Default::default(),
+        }
+    }
+
+    #[test]
+    fn the_settings_name_initial_poses_only_when_given() {
+        let plain = journal_settings(&config(PairInputs::default()));
+        assert!(plain.ends_with(&format!("registration={REGISTRATION_VERSION}")));
+        let initial = PairInputs {
+            initial: Some(("a.json".into(), 1)),
+            ..Default::default()
+        };
+        let other = PairInputs {
+            initial: Some(("a.json".into(), 2)),
+            ..Default::default()
+        };
+        let (a, b) = (
+            journal_settings(&config(initial)),
+            journal_settings(&config(other)),
+        );
+        assert!(a.starts_with(&plain) && a != plain && a != b, "{a}");
+    }
+}
