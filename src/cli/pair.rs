@@ -65,9 +65,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let result = match result {
         Ok(r) => r,
         Err(e @ (IcpError::NoOverlap | IcpError::EmptyOverlap)) => {
-            return Err(
-                InputError::new(format!("{} and {}: {e}", args.reference, args.moving)).into(),
-            )
+            let within = match (&args.inputs.mask, &e) {
+                (Some(m), IcpError::EmptyOverlap) => {
+                    format!(" on the stable cells of the mask {}", m.display())
+                }
+                _ => String::new(),
+            };
+            return Err(InputError::new(format!(
+                "{} and {}: {e}{within}",
+                args.reference, args.moving
+            ))
+            .into());
         }
         // a chunk of the store that cannot be read or decoded (the message names its file)
         Err(e @ IcpError::Read(_)) => {
@@ -101,6 +109,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "degenerate": result.degenerate, "ambiguity": result.ambiguity,
             "matrix_world": matrix_rows(&result.t_ref_moving),
             "result": result_json, "cache": cache.stats(),
+            "mask": args.inputs.mask, "initial": args.inputs.initial,
         });
         emit_line(&serde_json::to_string_pretty(&value)?)?;
     } else {
@@ -111,6 +120,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             &pose,
             seconds,
         ))?;
+        if let Some(line) = inputs_line(&args.inputs) {
+            emit_line(&line)?;
+        }
     }
     if !result.status.is_converged_or_held() {
         anyhow::bail!(
@@ -144,6 +156,16 @@ fn reason(r: &IcpResult) -> String {
         IcpStatus::Degenerate => "degenerate: no direction is constrained".into(),
         IcpStatus::Converged => "converged".into(),
     }
+}
+
+/// The mask and initial poses used, when any: "inputs      mask m.tif; initial p.json".
+fn inputs_line(inputs: &InputArgs) -> Option<String> {
+    let named = [("mask", &inputs.mask), ("initial", &inputs.initial)];
+    let parts: Vec<String> = named
+        .iter()
+        .filter_map(|(name, path)| path.as_ref().map(|p| format!("{name} {}", p.display())))
+        .collect();
+    (!parts.is_empty()).then(|| format!("inputs      {}", parts.join("; ")))
 }
 
 /// "x, y, yaw".

@@ -8,7 +8,7 @@ use super::outcome::{Failure, IcpFit, PairInformation, PairOutcome, PairTask};
 use super::PipelineConfig;
 use crate::cache::ChunkCache;
 use crate::grid::{Grid, GridError, Pyramid};
-use crate::icp::register;
+use crate::icp::{register, IcpError};
 use crate::plan::{overlap_score, scoring_level};
 use crate::store::{DsmMeta, Store, StorePyramid};
 use crate::view::to_raw_frames;
@@ -77,10 +77,16 @@ pub fn register_pair(
         }
         Err(e) => {
             tracing::warn!(reference = %ri.id, moving = %mi.id, error = %e, "pair failed");
+            let masked = matches!(e, IcpError::EmptyOverlap) && inputs.mask.is_some();
+            let within = if masked {
+                " on the mask's stable cells"
+            } else {
+                ""
+            };
             PairOutcome::Failed {
                 pair,
                 overlap,
-                failure: Failure::Error(e.to_string()),
+                failure: Failure::Error(format!("{e}{within}")),
             }
         }
     }

@@ -145,6 +145,15 @@ fn a_mask_excluding_a_changed_area_registers_the_pair_correctly() {
         "{err}"
     );
     assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    // a mask with no stable cell in the overlap: said so, exit 2
+    let elsewhere = p.dir.path().join("elsewhere.tif");
+    write_tiff_mask(&elsewhere, area, p.overlap.grown(250.0), 32617);
+    let out = run(&[
+        &"pair", &p.store, &"tile_00", &"tile_01", &"--mask", &elsewhere,
+    ]);
+    assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
+    let err = text(&out.stderr);
+    assert!(err.contains("on the stable cells of the mask"), "{err}");
 }
 
 #[test]
