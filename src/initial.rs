@@ -100,10 +100,19 @@ impl InitialPoses {
     /// A_anchor M_anchor^-1 when the anchor is in it, else the mean of A_i
     /// M_i^-1 over its DSMs (taken about their centre).
     pub fn regauge(&self, store: &Store, poses: &mut PosesFile, anchor: Option<&str>) {
-        let groups: Vec<Vec<String>> = match &poses.components {
+        let mut groups: Vec<Vec<String>> = match &poses.components {
             Some(c) if !c.is_empty() => c.clone(),
             _ => vec![poses.poses.iter().map(|p| p.id.clone()).collect()],
         };
+        // a pose in no listed component is a component of its own
+        let listed: std::collections::HashSet<String> = groups.iter().flatten().cloned().collect();
+        let alone: Vec<Vec<String>> = poses
+            .poses
+            .iter()
+            .filter(|p| !listed.contains(&p.id))
+            .map(|p| vec![p.id.clone()])
+            .collect();
+        groups.extend(alone);
         for group in groups {
             let members: Vec<usize> = poses
                 .poses

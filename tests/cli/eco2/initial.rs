@@ -4,7 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
-use nalgebra::Vector3;
+use nalgebra::{Matrix4, Vector3};
 use serde_json::{json, Value};
 
 use super::{error_m, matrix, rewrite, translation, Box2, Truth};
@@ -88,6 +88,28 @@ fn initial_poses_recover_a_dsm_offset_beyond_the_search_radius() {
     ]));
     let e = chain_error(&poses, &truth, shift);
     assert!(e < 0.15, "with --initial: {e} m");
+    // the mean gauge follows the initial poses: on average the poses move the
+    // collection's centre as the initial ones do
+    let doc: Value = serde_json::from_str(&std::fs::read_to_string(&poses).unwrap()).unwrap();
+    let o = nalgebra::Vector4::new(
+        500_140.0 + shift.0 / 4.0,
+        4_799_936.0 + shift.1 / 4.0,
+        200.0,
+        1.0,
+    );
+    let mut mean = Vector3::zeros();
+    for p in doc["poses"].as_array().unwrap() {
+        let initial = if p["id"] == "tile_03" {
+            start
+        } else {
+            Matrix4::identity()
+        };
+        mean += (matrix(&p["matrix_world"]) * o - initial * o).xyz() / 4.0;
+    }
+    assert!(
+        mean.norm() < 0.02,
+        "mean offset from the initial poses {mean}"
+    );
     // pair takes the same file
     let out = ok(run(&[
         &"pair",
