@@ -162,6 +162,17 @@ mod tests {
     struct T {
         #[command(flatten)]
         icp: IcpArgs,
+        #[command(flatten)]
+        inputs: InputArgs,
+    }
+
+    #[test]
+    fn mask_and_initial_are_optional_paths() {
+        let none = T::try_parse_from(["t"]).unwrap().inputs;
+        assert!(none.mask.is_none() && none.initial.is_none());
+        let t = T::try_parse_from(["t", "--mask", "m.geojson", "--initial", "p.json"]).unwrap();
+        assert_eq!(t.inputs.mask, Some(PathBuf::from("m.geojson")));
+        assert_eq!(t.inputs.initial, Some(PathBuf::from("p.json")));
     }
 
     #[test]
