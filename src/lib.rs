@@ -28,6 +28,8 @@
 //! - [`icp`], [`nn`], [`fit`]: pairwise DSM-ICP, coarse to fine: the exact grid
 //!   nearest-neighbour search of the paper, and the rigid fits
 //!   (point-to-surface, point-to-plane, point-to-point) with standard errors.
+//! - [`mask`], [`initial`], [`view`]: what a user brings to a registration
+//!   (stable-terrain masks, initial poses) and the view of a DSM they give.
 //! - [`pipeline`]: planner → N ICP workers → edge sink over bounded channels;
 //!   [`journal`] appends every finished pair to disk so `--resume` can skip it.
 //! - [`graph`]: the scene graph (edges, weights, components, spanning tree);
@@ -59,7 +61,9 @@ pub mod geotiff;
 pub mod graph;
 pub mod grid;
 pub mod icp;
+pub mod initial;
 pub mod journal;
+pub mod mask;
 pub mod nn;
 pub mod pipeline;
 pub mod plan;
@@ -68,5 +72,6 @@ pub mod poses;
 pub mod rng;
 pub mod store;
 pub mod synth;
+pub mod view;
 
 pub use error::InputError;

@@ -1,10 +1,12 @@
 //! Before any pair is registered: the checks of the store, the anchor and the
-//! output path, the planned pairs, the output lock and the journal (fresh, or
-//! resumed with the pairs it already holds).
+//! output path, the planned pairs (footprints moved by the initial poses, if
+//! any), the output lock and the journal (fresh, or resumed with the pairs it
+//! already holds; the settings it records include the mask and initial poses).
 
 use std::collections::HashSet;
 
 use super::{AlignConfig, AlignError};
+use crate::geo::Bounds;
 use crate::journal::{DsmIds, Journal, JournalError, OutputLock};
 use crate::pipeline::{PairOutcome, PairTask};
 use crate::plan::{candidate_pairs, Footprint};
@@ -43,12 +45,21 @@ pub fn plan(store: &Store, config: &AlignConfig) -> Result<AlignPlan, AlignError
         None => None,
     };
     check_output(&config.output)?;
+    // where the initial poses (if any) move each DSM
+    let inputs = &config.pipeline.inputs;
     let footprints: Vec<Footprint> = dsms
         .iter()
         .enumerate()
-        .map(|(index, d)| Footprint {
-            index,
-            bounds: d.footprint,
+        .map(|(index, d)| {
+            let s = inputs.shift_m(index);
+            let b = d.footprint;
+            Footprint {
+                index,
+                bounds: Bounds::from_corners(
+                    (b.min_x + s.x, b.min_y + s.y),
+                    (b.max_x + s.x, b.max_y + s.y),
+                ),
+            }
         })
         .collect();
     let tasks: Vec<PairTask> = candidate_pairs(&footprints)
@@ -107,8 +118,9 @@ pub fn open_journal(
         )
         .map_err(|e| match e {
             JournalError::Mismatch { path, .. } => AlignError::Input(format!(
-                "{path}: the journal of an earlier run used other ICP settings or \
-                 --min-overlap; run again with those to reuse its pairs, or add --fresh to start over"
+                "{path}: the journal of an earlier run used other ICP settings, \
+                 --min-overlap, --mask or --initial; run again with those to reuse its pairs, \
+                 or add --fresh to start over"
             )),
             e => e.into(),
         })?
@@ -124,15 +136,65 @@ pub fn open_journal(
 pub const REGISTRATION_VERSION: u32 = 2;
 
 /// The settings a journal's header records: a journal is reused (or, sharded,
-/// merged) only by a run with the same ones.
+/// merged) only by a run with the same ones. A mask and initial poses are
+/// recorded by their content's hash, and only when given (so journals of runs
+/// without them keep their settings).
 pub fn journal_settings(config: &AlignConfig) -> String {
     format!(
-        "{:?} min_overlap={} registration={REGISTRATION_VERSION}",
-        config.pipeline.icp, config.pipeline.min_overlap
+        "{:?} min_overlap={} registration={REGISTRATION_VERSION}{}",
+        config.pipeline.icp,
+        config.pipeline.min_overlap,
+        config.pipeline.inputs.settings()
     )
 }
 
 /// The store's DSM ids, for converting journal lines.
 pub fn dsm_ids(store: &Store) -> DsmIds {
     DsmIds::new(store.dsms().iter().map(|d| d.id.clone()).collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::graph::Weighting;
+    use crate::icp::IcpConfig;
+    use crate::pipeline::PipelineConfig;
+    use crate::poses::GraphKind;
+    use crate::view::PairInputs;
+
+    fn config(inputs: PairInputs) -> AlignConfig {
+        AlignConfig {
+            pipeline: PipelineConfig {
+                threads: 1,
+                icp: IcpConfig::default(),
+                min_overlap: 0.1,
+                inputs,
+            },
+            graph: GraphKind::Full,
+            weights: Weighting::Information,
+            anchor: None,
+            resume: true,
+            output: "poses.json".into(),
+            sharding: Default::default(),
+        }
+    }
+
+    #[test]
+    fn the_settings_name_initial_poses_only_when_given() {
+        let plain = journal_settings(&config(PairInputs::default()));
+        assert!(plain.ends_with(&format!("registration={REGISTRATION_VERSION}")));
+        let initial = PairInputs {
+            initial: Some(("a.json".into(), 1)),
+            ..Default::default()
+        };
+        let other = PairInputs {
+            initial: Some(("a.json".into(), 2)),
+            ..Default::default()
+        };
+        let (a, b) = (
+            journal_settings(&config(initial)),
+            journal_settings(&config(other)),
+        );
+        assert!(a.starts_with(&plain) && a != plain && a != b, "{a}");
+    }
 }

@@ -1,6 +1,8 @@
 //! `dsmstream align <store> --out poses.json`: every overlapping pair through
 //! DSM-ICP, the scene graph, motion averaging (or `--graph mst`), poses.json;
 //! `--shard K/N` registers one shard's pairs only, `--merge` solves from them.
+//! `--mask` limits every pair to stable terrain; `--initial` starts each DSM
+//! from a given pose and keeps the collection where those poses put it.
 
 use std::path::PathBuf;
 
@@ -15,7 +17,7 @@ use dsmstream::poses::GraphKind;
 use dsmstream::InputError;
 
 use super::common::{emit_line, open_store, progress_bar, quiet, warn_line, ResourceArgs};
-use super::icp_args::IcpArgs;
+use super::icp_args::{IcpArgs, InputArgs};
 
 #[derive(clap::ValueEnum, Clone, Copy, Debug)]
 pub enum GraphArg {
@@ -73,6 +75,8 @@ pub struct Args {
     pub merge: bool,
     #[command(flatten)]
     pub icp: IcpArgs,
+    #[command(flatten)]
+    pub inputs: InputArgs,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -80,6 +84,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         return Err(InputError::new("--min-overlap must be within [0, 1]").into());
     }
     let store = open_store(&args.store)?;
+    let (inputs, initial) = args.inputs.load(&store)?;
     let memory = plan_memory(
         (args.resources.cache_mb as usize) << 20,
         pinned_bytes_per_thread(&store),
@@ -92,6 +97,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             threads: memory.threads,
             icp: args.icp.to_config()?,
             min_overlap: args.min_overlap,
+            inputs,
         },
         graph: match args.graph {
             GraphArg::Full => GraphKind::Full,
@@ -138,8 +144,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let outcome = align(&store, &cache, &config, &mut progress);
     bar.finish_and_clear();
-    let outcome = outcome.map_err(to_anyhow)?;
+    let mut outcome = outcome.map_err(to_anyhow)?;
     cache.log_stats();
+    if let Some(initial) = &initial {
+        initial.regauge(&store, &mut outcome.poses, args.anchor.as_deref());
+    }
     outcome.poses.write(&args.out)?;
     print_summary(&outcome, &args.out, started.elapsed().as_secs_f64())?;
     Ok(())

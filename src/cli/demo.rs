@@ -151,6 +151,7 @@ fn run_collection(data_dir: &Path, work: &Path) -> anyhow::Result<()> {
             shard: None,
             merge: false,
             icp: IcpArgs::default(),
+            inputs: Default::default(),
         })?;
         rows.push((graph, PosesFile::read(&out)?));
     }

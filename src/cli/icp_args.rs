@@ -1,10 +1,63 @@
 //! The DSM-ICP flags shared by `pair` and `align`, flattened into both. Their
 //! defaults are [`IcpConfig::default`]'s, so the library and the command line
-//! cannot drift apart.
+//! cannot drift apart. [`InputArgs`]: what the user brings besides the store
+//! (`--mask`, `--initial`), loaded into the [`PairInputs`] every pair sees.
+
+use std::path::PathBuf;
+use std::sync::Arc;
 
 use dsmstream::fit::Model;
 use dsmstream::icp::{IcpConfig, Metric};
+use dsmstream::initial::InitialPoses;
+use dsmstream::mask::{MaskTarget, StableMask};
+use dsmstream::store::Store;
+use dsmstream::view::PairInputs;
 use dsmstream::InputError;
+
+/// A stable-terrain mask and initial poses, shared by `pair` and `align`.
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct InputArgs {
+    /// Stable terrain: a GeoTIFF in the DSMs' CRS (non-zero = stable; 0,
+    /// no-data and outside = excluded) or GeoJSON polygons (.geojson, .json)
+    /// of the stable areas. Excluded points are not matched.
+    #[arg(long, value_name = "FILE")]
+    pub mask: Option<PathBuf>,
+    /// Initial poses ({"poses": [{"id", "matrix_world"}]}, e.g. an earlier
+    /// poses.json): each listed DSM starts there, the others at the identity;
+    /// the poses written are full corrections.
+    #[arg(long, value_name = "POSES")]
+    pub initial: Option<PathBuf>,
+}
+
+impl InputArgs {
+    /// Reads the mask and the initial poses for `store`; any problem with
+    /// them is bad input (exit 2) naming the file. The initial poses are
+    /// returned too (align re-gauges with them).
+    pub fn load(&self, store: &Store) -> anyhow::Result<(PairInputs, Option<InitialPoses>)> {
+        let mut inputs = PairInputs::default();
+        if let Some(path) = &self.mask {
+            let mask = StableMask::load(path, &MaskTarget::of_store(store))
+                .map_err(|e| InputError::new(e.to_string()))?;
+            tracing::info!(mask = %path.display(), stable = mask.stable_fraction(), "mask read");
+            inputs.mask = Some(Arc::new(mask));
+        }
+        let Some(path) = &self.initial else {
+            return Ok((inputs, None));
+        };
+        let initial = InitialPoses::read(path).map_err(InputError::new)?;
+        let unknown = initial.check(store).map_err(InputError::new)?;
+        if !unknown.is_empty() {
+            super::common::warn_line(&format!(
+                "{}: poses of {} not in the store ignored",
+                path.display(),
+                unknown.join(", ")
+            ));
+        }
+        inputs.shifts_m = initial.shifts_m(store);
+        inputs.initial = Some((path.clone(), initial.content_hash));
+        Ok((inputs, Some(initial)))
+    }
+}
 
 fn defaults() -> IcpConfig {
     IcpConfig::default()
@@ -109,6 +162,17 @@ mod tests {
     struct T {
         #[command(flatten)]
         icp: IcpArgs,
+        #[command(flatten)]
+        inputs: InputArgs,
+    }
+
+    #[test]
+    fn mask_and_initial_are_optional_paths() {
+        let none = T::try_parse_from(["t"]).unwrap().inputs;
+        assert!(none.mask.is_none() && none.initial.is_none());
+        let t = T::try_parse_from(["t", "--mask", "m.geojson", "--initial", "p.json"]).unwrap();
+        assert_eq!(t.inputs.mask, Some(PathBuf::from("m.geojson")));
+        assert_eq!(t.inputs.initial, Some(PathBuf::from("p.json")));
     }
 
     #[test]

@@ -1,7 +1,7 @@
 //! `dsmstream ingest`: convert GeoTIFF DSMs (or VRT mosaics of them) into the
 //! collection store, with a progress bar (rows read, through tracing-indicatif,
 //! hidden by `-q`; plain lines of DSMs done when stderr is not a terminal) and
-//! one summary line per DSM on stdout.
+//! one summary line per DSM on stdout. `@LIST` inputs are expanded here.
 
 use std::cell::RefCell;
 use std::path::PathBuf;
@@ -20,7 +20,7 @@ pub struct Args {
     /// GeoTIFF files, GDAL VRT mosaics of GeoTIFFs (*.vrt, each one DSM named
     /// after the VRT), directories whose *.tif / *.tiff files are all taken, or
     /// @LIST: a text file naming one input per line (blank lines and # comments
-    /// skipped; relative paths from the current directory).
+    /// skipped; relative paths from the list file's folder).
     #[arg(required = true)]
     pub inputs: Vec<PathBuf>,
     /// The store directory (created if absent), e.g. collection.zarr.
@@ -164,7 +164,8 @@ fn warn_mixed_vertical(store: &std::path::Path) {
     }
 }
 
-/// The inputs with every `@LIST` replaced by the paths it names.
+/// The inputs with every `@LIST` replaced by the paths it names (relative
+/// ones taken from the list file's folder, so a list travels with its data).
 fn expand_lists(inputs: &[PathBuf]) -> Result<Vec<PathBuf>, InputError> {
     let mut out = Vec::with_capacity(inputs.len());
     for input in inputs {
@@ -174,12 +175,15 @@ fn expand_lists(inputs: &[PathBuf]) -> Result<Vec<PathBuf>, InputError> {
         };
         let text = std::fs::read_to_string(list)
             .map_err(|e| InputError::new(format!("{list}: cannot read the input list ({e})")))?;
+        let folder = std::path::Path::new(list)
+            .parent()
+            .unwrap_or(std::path::Path::new(""));
         let before = out.len();
         out.extend(
             text.lines()
                 .map(str::trim)
                 .filter(|l| !l.is_empty() && !l.starts_with('#'))
-                .map(PathBuf::from),
+                .map(|l| folder.join(l)),
         );
         if out.len() == before {
             return Err(InputError::new(format!(
@@ -218,4 +222,35 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         count(DsmAction::Skipped)
     ))?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn list_paths_are_taken_from_the_list_files_folder() {
+        let dir = tempfile::tempdir().unwrap();
+        let lists = dir.path().join("lists");
+        std::fs::create_dir(&lists).unwrap();
+        let list = lists.join("in.txt");
+        std::fs::write(&list, "# inputs\n../data/a.tif\n\n  /abs/b.tif  \nc.vrt\n").unwrap();
+        let at = PathBuf::from(format!("@{}", list.display()));
+        let plain = PathBuf::from("d.tif");
+        let got = expand_lists(&[plain.clone(), at]).unwrap();
+        assert_eq!(
+            got,
+            vec![
+                plain,
+                lists.join("../data/a.tif"),
+                PathBuf::from("/abs/b.tif"),
+                lists.join("c.vrt")
+            ]
+        );
+        std::fs::write(&list, "# nothing\n\n").unwrap();
+        let empty = expand_lists(&[PathBuf::from(format!("@{}", list.display()))]).unwrap_err();
+        assert!(empty
+            .to_string()
+            .ends_with("in.txt: the input list names no file"));
+    }
 }

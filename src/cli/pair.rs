@@ -4,6 +4,10 @@
 //! (degenerate) axes, the ambiguity of the global search, and the transform
 //! as `matrix_world` (the name poses.json uses).
 //!
+//! `--mask` limits the match to stable terrain; `--initial` starts the two
+//! DSMs from their poses in a poses file (the result stays the full relative
+//! transform between the DSMs as stored).
+//!
 //! Exit 0 when converged, or converged with degenerate axes held (said so);
 //! 1 otherwise (not converged, ambiguous, diverged, too few inliers) with a
 //! one-line reason; 2 for bad input.
@@ -12,10 +16,11 @@ use std::path::PathBuf;
 
 use dsmstream::icp::{matrix_rows, register, CentredPose, IcpError, IcpResult, IcpStatus};
 use dsmstream::store::StorePyramid;
+use dsmstream::view::to_raw_frames;
 use dsmstream::InputError;
 
 use super::common::{emit, emit_line, find_dsm, open_store, ResourceArgs};
-use super::icp_args::IcpArgs;
+use super::icp_args::{IcpArgs, InputArgs};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -27,6 +32,8 @@ pub struct Args {
     pub moving: String,
     #[command(flatten)]
     pub icp: IcpArgs,
+    #[command(flatten)]
+    pub inputs: InputArgs,
     #[command(flatten)]
     pub resources: ResourceArgs,
     /// Print the result as JSON.
@@ -44,21 +51,31 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if i == j {
         return Err(InputError::new("the reference and the moving DSM are the same").into());
     }
+    let (inputs, _) = args.inputs.load(&store)?;
     let cache = args.resources.cache();
     let started = std::time::Instant::now();
+    let (reference, moving) = (
+        inputs.view(StorePyramid::new(&store, &cache, i), i),
+        inputs.view(StorePyramid::new(&store, &cache, j), j),
+    );
     let result = args.resources.pool()?.install(|| {
-        register(
-            &StorePyramid::new(&store, &cache, i),
-            &StorePyramid::new(&store, &cache, j),
-            &config,
-        )
+        register(&reference, &moving, &config)
+            .map(|r| to_raw_frames(r, &reference.shift_m, &moving.shift_m))
     });
     let result = match result {
         Ok(r) => r,
         Err(e @ (IcpError::NoOverlap | IcpError::EmptyOverlap)) => {
-            return Err(
-                InputError::new(format!("{} and {}: {e}", args.reference, args.moving)).into(),
-            )
+            let within = match (&args.inputs.mask, &e) {
+                (Some(m), IcpError::EmptyOverlap) => {
+                    format!(" on the stable cells of the mask {}", m.display())
+                }
+                _ => String::new(),
+            };
+            return Err(InputError::new(format!(
+                "{} and {}: {e}{within}",
+                args.reference, args.moving
+            ))
+            .into());
         }
         // a chunk of the store that cannot be read or decoded (the message names its file)
         Err(e @ IcpError::Read(_)) => {
@@ -92,6 +109,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "degenerate": result.degenerate, "ambiguity": result.ambiguity,
             "matrix_world": matrix_rows(&result.t_ref_moving),
             "result": result_json, "cache": cache.stats(),
+            "mask": args.inputs.mask, "initial": args.inputs.initial,
         });
         emit_line(&serde_json::to_string_pretty(&value)?)?;
     } else {
@@ -102,6 +120,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             &pose,
             seconds,
         ))?;
+        if let Some(line) = inputs_line(&args.inputs) {
+            emit_line(&line)?;
+        }
     }
     if !result.status.is_converged_or_held() {
         anyhow::bail!(
@@ -135,6 +156,16 @@ fn reason(r: &IcpResult) -> String {
         IcpStatus::Degenerate => "degenerate: no direction is constrained".into(),
         IcpStatus::Converged => "converged".into(),
     }
+}
+
+/// The mask and initial poses used, when any: "inputs      mask m.tif; initial p.json".
+fn inputs_line(inputs: &InputArgs) -> Option<String> {
+    let named = [("mask", &inputs.mask), ("initial", &inputs.initial)];
+    let parts: Vec<String> = named
+        .iter()
+        .filter_map(|(name, path)| path.as_ref().map(|p| format!("{name} {}", p.display())))
+        .collect();
+    (!parts.is_empty()).then(|| format!("inputs      {}", parts.join("; ")))
 }
 
 /// "x, y, yaw".

@@ -29,6 +29,7 @@ use crate::cache::ChunkCache;
 use crate::icp::IcpConfig;
 use crate::journal::{Journal, JournalError};
 use crate::store::Store;
+use crate::view::PairInputs;
 
 /// Settings of one pipeline run.
 #[derive(Clone, Debug)]
@@ -38,6 +39,8 @@ pub struct PipelineConfig {
     pub icp: IcpConfig,
     /// Pairs scoring below this s_ij give no edge.
     pub min_overlap: f64,
+    /// Stable-terrain mask and initial shifts seen by every pair.
+    pub inputs: PairInputs,
 }
 
 #[derive(Debug, thiserror::Error)]

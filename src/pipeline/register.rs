@@ -1,13 +1,17 @@
 //! One pair through the worker: score the overlap on the overviews and, if it
 //! is large enough, register it with DSM-ICP through the shared chunk cache.
+//! Both DSMs are seen through [`crate::view`] (moved by their initial shifts,
+//! masked for the registration, not for the score); the result is returned
+//! in the DSMs' own coordinates.
 
 use super::outcome::{Failure, IcpFit, PairInformation, PairOutcome, PairTask};
 use super::PipelineConfig;
 use crate::cache::ChunkCache;
 use crate::grid::{Grid, GridError, Pyramid};
-use crate::icp::register;
+use crate::icp::{register, IcpError};
 use crate::plan::{overlap_score, scoring_level};
 use crate::store::{DsmMeta, Store, StorePyramid};
+use crate::view::to_raw_frames;
 
 /// Scores one pair on the overviews and, if it overlaps enough, registers it.
 #[tracing::instrument(level = "debug", skip_all, fields(reference = pair.reference, moving = pair.moving))]
@@ -19,9 +23,17 @@ pub fn register_pair(
 ) -> PairOutcome {
     let dsms = store.dsms();
     let (ri, mi) = (&dsms[pair.reference], &dsms[pair.moving]);
-    let reference = StorePyramid::new(store, cache, pair.reference);
-    let moving = StorePyramid::new(store, cache, pair.moving);
-    let overlap = match score(&reference, &moving, ri, mi) {
+    let inputs = &config.inputs;
+    let store_dsm = |k| StorePyramid::new(store, cache, k);
+    let reference = inputs.view(store_dsm(pair.reference), pair.reference);
+    let moving = inputs.view(store_dsm(pair.moving), pair.moving);
+    let scored = score(
+        &inputs.moved(store_dsm(pair.reference), pair.reference),
+        &inputs.moved(store_dsm(pair.moving), pair.moving),
+        ri,
+        mi,
+    );
+    let overlap = match scored {
         Ok(s) => s,
         Err(e) => {
             tracing::warn!(reference = %ri.id, moving = %mi.id, error = %e, "pair failed");
@@ -35,7 +47,9 @@ pub fn register_pair(
     if overlap < config.min_overlap {
         return PairOutcome::BelowOverlap { pair, overlap };
     }
-    match register(&reference, &moving, &config.icp) {
+    let registered = register(&reference, &moving, &config.icp)
+        .map(|r| to_raw_frames(r, &reference.shift_m, &moving.shift_m));
+    match registered {
         Ok(r) => {
             tracing::debug!(reference = %ri.id, moving = %mi.id, rmse_m = r.rmse_m, status = ?r.status, "pair aligned");
             let fit = IcpFit {
@@ -63,19 +77,25 @@ pub fn register_pair(
         }
         Err(e) => {
             tracing::warn!(reference = %ri.id, moving = %mi.id, error = %e, "pair failed");
+            let masked = matches!(e, IcpError::EmptyOverlap) && inputs.mask.is_some();
+            let within = if masked {
+                " on the mask's stable cells"
+            } else {
+                ""
+            };
             PairOutcome::Failed {
                 pair,
                 overlap,
-                failure: Failure::Error(e.to_string()),
+                failure: Failure::Error(format!("{e}{within}")),
             }
         }
     }
 }
 
 /// s_ij on a common level: the coarser of the two DSMs' scoring levels.
-fn score(
-    reference: &StorePyramid<'_>,
-    moving: &StorePyramid<'_>,
+fn score<P: Pyramid>(
+    reference: &P,
+    moving: &P,
     ri: &DsmMeta,
     mi: &DsmMeta,
 ) -> Result<f64, GridError> {

@@ -10,6 +10,7 @@ mod coarse;
 mod demo;
 mod dsmgen;
 mod eco;
+mod eco2;
 mod faults;
 mod fuse_eval;
 mod fuzz;
