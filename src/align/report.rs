@@ -34,8 +34,10 @@ pub struct EdgeCounts {
     /// Kept at a lower weight by the robust averaging.
     pub downweighted: usize,
     /// Edges whose pair did not converge or is ambiguous: in the information
-    /// averaging at 1 % of their weight, never counted as constraining.
+    /// averaging at `unreliable_weight` of their weight, never counted as
+    /// constraining.
     pub unreliable: usize,
+    pub unreliable_weight: Option<f64>,
     /// A-posteriori variance of unit weight (information averaging).
     pub variance_factor: Option<f64>,
 }
@@ -165,6 +167,7 @@ pub fn edge_counts(scene: &SceneGraph, solution: &PoseSolution) -> EdgeCounts {
             .as_ref()
             .map_or(0, |info| info.iter().filter(|e| !e.reliable).count()),
         variance_factor: solution.summary.as_ref().and_then(|s| s.variance_factor),
+        unreliable_weight: solution.summary.as_ref().and_then(|s| s.unreliable_weight),
     }
 }
 

@@ -100,6 +100,7 @@ fn solve_informed(
     let summary = PosesSummary {
         weights: Some(scene.weights.used),
         variance_factor: informed.variance_factor,
+        unreliable_weight: Some(informed.unreliable_weight),
         ..PosesSummary::from_result(&result)
     };
     Ok(PoseSolution {

@@ -100,7 +100,8 @@ fn block_inverse(c: &Matrix3<f64>) -> Matrix3<f64> {
 pub struct InformedOptions {
     /// The scalar averaging of step 1 (its gauge is overridden: mean).
     pub base: AveragingOptions,
-    /// Weight factor of edges not `reliable`.
+    /// Weight factor of edges not `reliable`: the least it can be; the factor
+    /// used is estimated from the data ([`unreliable_weight`]), at most 1.
     pub unreliable_factor: f64,
     /// Mahalanobis residual (in sigmas) above which an edge may be an outlier.
     pub outlier_sigma: f64,
@@ -170,6 +171,8 @@ pub struct InformedResult {
     /// their sigmas say; None without redundancy). Node sigmas are scaled by its
     /// square root when it exceeds one.
     pub variance_factor: Option<f64>,
+    /// The weight factor the edges not `reliable` entered with.
+    pub unreliable_weight: f64,
 }
 
 /// Averages `graph` with one [`EdgeInformation`] per edge.
@@ -217,6 +220,30 @@ pub fn average_informed(
             &mut translations,
         );
         mahalanobis = mahalanobis_residuals(graph, &omegas, &rotations, &translations);
+    }
+    // How far the unreliable edges really are from the reliable ones' solution
+    // sets their weight; then the IRLS rounds again at that weight.
+    let unreliable = unreliable_weight(information, &mahalanobis, &usable, options);
+    let mut omegas = omegas;
+    if unreliable != options.unreliable_factor {
+        let at = InformedOptions {
+            unreliable_factor: unreliable,
+            ..*options
+        };
+        omegas = effective_information(information, &at);
+        mahalanobis = mahalanobis_residuals(graph, &omegas, &rotations, &translations);
+        for _ in 0..options.max_rounds / 2 {
+            let weights = cauchy_weights(&mahalanobis, &usable, options.outlier_sigma);
+            iterations += refine(
+                graph,
+                &omegas,
+                &weights,
+                options,
+                &mut rotations,
+                &mut translations,
+            );
+            mahalanobis = mahalanobis_residuals(graph, &omegas, &rotations, &translations);
+        }
     }
     // Then hard decisions, a few edges per round (see `select`), the undecided
     // edges still Cauchy-weighted so that outliers not yet dropped do not bend
@@ -319,7 +346,41 @@ pub fn average_informed(
         mahalanobis,
         refine_iterations: iterations,
         variance_factor: factor,
+        unreliable_weight: unreliable,
     })
+}
+
+/// The weight factor of the edges not `reliable` (did not converge, ambiguous):
+/// the ratio of the median squared Mahalanobis residual (rotation and
+/// translation, at their full information) of the reliable edges to theirs, at
+/// the current poses, clamped to [`InformedOptions::unreliable_factor`], 1]. An
+/// unconverged pair that stopped 30 cm off where converged ones are 6 cm off
+/// gets ~1/25 of its information: the variance-component estimate of its class,
+/// robust to the outliers among them (medians). With fewer than 10 edges in
+/// either class: the floor.
+fn unreliable_weight(
+    information: &[EdgeInformation],
+    mahalanobis: &[(f64, f64)],
+    usable: &[f64],
+    options: &InformedOptions,
+) -> f64 {
+    let floor = options.unreliable_factor;
+    let class = |reliable: bool, scale: f64| {
+        let mut d2: Vec<f64> = (0..information.len())
+            .filter(|&k| information[k].reliable == reliable && usable[k] > 0.0)
+            .map(|k| (mahalanobis[k].0.powi(2) + mahalanobis[k].1.powi(2)) / scale)
+            .filter(|v| v.is_finite())
+            .collect();
+        if d2.len() < 10 {
+            return None;
+        }
+        let mid = d2.len() / 2;
+        Some(*d2.select_nth_unstable_by(mid, f64::total_cmp).1)
+    };
+    match (class(true, 1.0), class(false, floor)) {
+        (Some(good), Some(weak)) if weak > 0.0 => (good / weak).clamp(floor, 1.0),
+        _ => floor,
+    }
 }
 
 /// active / (1 + (d / scale)^2), d the larger Mahalanobis residual of the edge.

@@ -223,7 +223,10 @@ fn print_summary(
                 c.downweighted,
                 match c.unreliable {
                     0 => String::new(),
-                    n => format!(", {n} not converged or ambiguous at 1 % weight"),
+                    n => format!(
+                        ", {n} not converged or ambiguous at {} % weight",
+                        percent(c.unreliable_weight.unwrap_or(0.01))
+                    ),
                 }
             ),
             format!("full, weights {}", outcome.weights.used.label()),
@@ -258,4 +261,14 @@ fn print_summary(
         ))?;
     }
     emit_line(&format!("poses written to {}", out.display()))
+}
+
+/// A weight factor as a percentage: two significant digits, at least "1".
+fn percent(factor: f64) -> String {
+    let p = factor * 100.0;
+    if p >= 10.0 {
+        format!("{p:.0}")
+    } else {
+        format!("{p:.1}").trim_end_matches(".0").to_string()
+    }
 }

@@ -152,6 +152,10 @@ pub struct PosesSummary {
     /// sigmas say, and the poses' sigmas were scaled by its square root.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub variance_factor: Option<f64>,
+    /// The weight factor (0.01-1) of the edges whose pair did not converge or is
+    /// ambiguous, estimated from how far they are from the reliable ones.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub unreliable_weight: Option<f64>,
 }
 
 impl PosesSummary {
@@ -182,6 +186,7 @@ impl PosesSummary {
             cg_iterations: result.cg_iterations,
             weights: None,
             variance_factor: None,
+            unreliable_weight: None,
         }
     }
 }

@@ -3,9 +3,9 @@
 //! one DSM reached only by unreliable edges.
 
 use super::*;
+use crate::averaging::robust::rotation_vector;
 use crate::averaging::synthetic::{normal3, SplitMix64};
 use crate::graph::Edge;
-use crate::averaging::robust::rotation_vector;
 use crate::poses::rigid::{apply, inverse_rigid, rotation_from_axis_angle};
 use nalgebra::Matrix4;
 
