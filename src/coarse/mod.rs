@@ -29,6 +29,7 @@
 //! ICP's convention: p_ref = p_moving + `shift_m`.
 
 pub mod cost;
+pub mod lattice;
 pub mod search;
 
 use nalgebra::Vector3;
@@ -226,7 +227,7 @@ fn global_scan<R: Pyramid, M: Pyramid>(
     let at_zero = cost::score_shift(&mut ref_win, &samples, [0.0, 0.0], 0, &mut scratch);
     // a shift must keep half the overlap the georeferenced position has
     let min_support = 16.max(at_zero.support / 2).min(samples.len() / 2);
-    let trials = scan(&mut ref_win, &samples, step, radius_px, min_support);
+    let trials = scan(&ref_win, &samples, radius_px, min_support);
     let peaks = minima(&trials, radius_px, 2, config.candidates.max(1));
     if peaks.is_empty() {
         return Err(CoarseError::NoMatch(d_m));
