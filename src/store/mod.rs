@@ -18,12 +18,12 @@ pub mod catalog;
 pub mod check;
 mod chunks;
 mod commit;
-mod open_arrays;
 mod files;
 pub mod geo_attrs;
 pub mod grid;
 pub mod ingest;
 pub mod lock;
+mod open_arrays;
 mod plan;
 mod pyramid;
 pub mod source;
@@ -46,8 +46,8 @@ pub use chunks::ChunkRecord;
 pub use grid::{ChunkReadError, StoreGrid};
 pub use ingest::{ingest, IngestError, IngestOptions, IngestReport};
 pub use lock::StoreLock;
-pub use view::StorePyramid;
 use open_arrays::{OpenArrays, MAX_OPEN_ARRAYS};
+pub use view::StorePyramid;
 
 use crate::geo::Crs;
 

@@ -348,14 +348,19 @@ mod tests {
     #[test]
     fn small_levels_get_chunks_of_their_size() {
         let s = StorageSettings::default();
-        let chunks = |w, h| -> Vec<u64> { level_shapes(w, h, &s).iter().map(|l| l.chunk).collect() };
+        let chunks =
+            |w, h| -> Vec<u64> { level_shapes(w, h, &s).iter().map(|l| l.chunk).collect() };
         assert_eq!(chunks(64, 64), vec![64]);
         assert_eq!(chunks(128, 100), vec![128, 64]);
         assert_eq!(chunks(1000, 300), vec![512, 512, 256, 128, 64]);
         // 300 px: a power of two would add 70 %, a multiple of 16 adds 1 %
         assert_eq!(level_chunk(512, 300, 20), 304);
         assert_eq!(level_chunk(512, 5, 3), 16);
-        assert_eq!(level_chunk(48, 40, 40), 48, "never above the requested side");
+        assert_eq!(
+            level_chunk(48, 40, 40),
+            48,
+            "never above the requested side"
+        );
         assert_eq!(level_chunk(512, 4096, 10), 512);
     }
 
