@@ -15,7 +15,8 @@
 //!    offset = median(dh), cost = RMS of dh - offset clipped at 3 NMAD ([`cost`]). The spread does not see
 //!    the vertical offset, so no vertical search is needed, and it ignores up to
 //!    half the overlap being water, change or outliers. Exhaustive: a few
-//!    thousand shifts of a few thousand samples at that level.
+//!    thousand shifts of a few thousand samples at that level, each sample's
+//!    bilinear cell computed once ([`lattice`]).
 //! 3. **Candidates.** The distinct local minima of the cost map, best first
 //!    (at most `candidates`), are each refined level by level down to
 //!    `finest_level` (±2 pixels at each level, a parabola at the last), on
