@@ -87,20 +87,26 @@ pub fn score_shift<G: Grid + ?Sized>(
             scratch.push(h - s.h_m);
         }
     }
-    let support = scratch.len();
+    score_residuals(scratch, min_support)
+}
+
+/// The score of the height differences H_ref - h in `residuals` (reordered
+/// and overwritten): infinite cost below `min_support` of them.
+pub fn score_residuals(residuals: &mut [f64], min_support: usize) -> ShiftScore {
+    let support = residuals.len();
     if support < min_support.max(3) {
         return ShiftScore {
             support,
             ..ShiftScore::EMPTY
         };
     }
-    let dz_m = median_in_place(scratch);
-    for d in scratch.iter_mut() {
+    let dz_m = median_in_place(residuals);
+    for d in residuals.iter_mut() {
         *d = (*d - dz_m).abs();
     }
-    let nmad_m = 1.4826 * median_in_place(scratch);
+    let nmad_m = 1.4826 * median_in_place(residuals);
     let clip_m = (3.0 * nmad_m).max(1e-3);
-    let sum_sq: f64 = scratch.iter().map(|r| r.min(clip_m).powi(2)).sum();
+    let sum_sq: f64 = residuals.iter().map(|r| r.min(clip_m).powi(2)).sum();
     ShiftScore {
         support,
         dz_m,

@@ -15,7 +15,8 @@
 //!    offset = median(dh), cost = RMS of dh - offset clipped at 3 NMAD ([`cost`]). The spread does not see
 //!    the vertical offset, so no vertical search is needed, and it ignores up to
 //!    half the overlap being water, change or outliers. Exhaustive: a few
-//!    thousand shifts of a few thousand samples at that level.
+//!    thousand shifts of a few thousand samples at that level, each sample's
+//!    bilinear cell computed once ([`lattice`]).
 //! 3. **Candidates.** The distinct local minima of the cost map, best first
 //!    (at most `candidates`), are each refined level by level down to
 //!    `finest_level` (±2 pixels at each level, a parabola at the last), on
@@ -29,6 +30,7 @@
 //! ICP's convention: p_ref = p_moving + `shift_m`.
 
 pub mod cost;
+pub mod lattice;
 pub mod search;
 
 use nalgebra::Vector3;
@@ -226,7 +228,7 @@ fn global_scan<R: Pyramid, M: Pyramid>(
     let at_zero = cost::score_shift(&mut ref_win, &samples, [0.0, 0.0], 0, &mut scratch);
     // a shift must keep half the overlap the georeferenced position has
     let min_support = 16.max(at_zero.support / 2).min(samples.len() / 2);
-    let trials = scan(&mut ref_win, &samples, step, radius_px, min_support);
+    let trials = scan(&ref_win, &samples, radius_px, min_support);
     let peaks = minima(&trials, radius_px, 2, config.candidates.max(1));
     if peaks.is_empty() {
         return Err(CoarseError::NoMatch(d_m));

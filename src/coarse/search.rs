@@ -3,6 +3,7 @@
 //! map, and the refinement of one minimum down the pyramid.
 
 use super::cost::{score_shift, Sample, ShiftScore};
+use super::lattice::LatticeSamples;
 use crate::grid::{Grid, MemGrid};
 
 /// A trial shift with its score (shift in CRS metres, moving -> reference).
@@ -61,24 +62,24 @@ pub fn window<G: Grid + ?Sized>(grid: &mut G, box_m: &[f64; 4]) -> MemGrid {
     MemGrid::from_fn(w, h, sub, |c, r| grid.get(c0 + c, r0 + r))
 }
 
-/// The full scan: every shift (i dx, j dy) with |i|, |j| <= radius_px, row-major
-/// over j then i. Returns the scores and the radius used.
-pub fn scan<G: Grid + ?Sized>(
-    reference: &mut G,
+/// The full scan of the in-memory `window`: every shift (i dx, j dy) by whole
+/// pixels of the window, |i|, |j| <= radius_px, row-major over j then i.
+pub fn scan(
+    window: &MemGrid,
     samples: &[Sample],
-    step_m: [f64; 2],
     radius_px: i64,
     min_support: usize,
 ) -> Vec<Trial> {
+    let gt = window.geotransform();
+    let step_m = [gt.gsd_x(), gt.gsd_y()];
+    let lattice = LatticeSamples::new(window, samples);
     let mut scratch = Vec::with_capacity(samples.len());
     let mut trials = Vec::with_capacity(((2 * radius_px + 1) * (2 * radius_px + 1)) as usize);
     for j in -radius_px..=radius_px {
         for i in -radius_px..=radius_px {
-            let shift = [i as f64 * step_m[0], j as f64 * step_m[1]];
-            let score = score_shift(reference, samples, shift, min_support, &mut scratch);
             trials.push(Trial {
-                shift_xy_m: shift,
-                score,
+                shift_xy_m: [i as f64 * step_m[0], j as f64 * step_m[1]],
+                score: lattice.score(window, [i, j], min_support, &mut scratch),
             });
         }
     }

@@ -69,24 +69,30 @@ pub fn eval_pairs(
         .collect();
     let pairs = candidate_pairs(&footprints);
     config.progress.plan(pairs.len());
-    let results = pool.install(|| {
-        pairs
-            .par_iter()
-            .map(|&(i, j)| {
-                let region = footprints[i].bounds.clip(&footprints[j].bounds);
-                let result = eval_pair(store, cache, before, after, config, i, j, region);
-                config.progress.tick();
-                result
-            })
-            .collect::<Result<Vec<_>, _>>()
-    })?;
     let mut plot_before = Thinned::new(1_000_000);
     let mut plot_after = Thinned::new(1_000_000);
-    let mut out = Vec::with_capacity(results.len());
-    for (pair, b, a) in results {
-        plot_before.extend(&b);
-        plot_after.extend(&a);
-        out.push(pair);
+    let mut out = Vec::with_capacity(pairs.len());
+    // Batches in pair order: the plot samples of a batch are merged before the
+    // next starts, so memory is one batch's (not every pair's) samples, and
+    // the thinned plot values are the same as over all pairs at once.
+    let batch = PAIRS_PER_THREAD_BATCH * pool.current_num_threads().max(1);
+    for chunk in pairs.chunks(batch) {
+        let results = pool.install(|| {
+            chunk
+                .par_iter()
+                .map(|&(i, j)| {
+                    let region = footprints[i].bounds.clip(&footprints[j].bounds);
+                    let result = eval_pair(store, cache, before, after, config, i, j, region);
+                    config.progress.tick();
+                    result
+                })
+                .collect::<Result<Vec<_>, _>>()
+        })?;
+        for (pair, b, a) in results {
+            plot_before.extend(&b);
+            plot_after.extend(&a);
+            out.push(pair);
+        }
     }
     Ok(PairsOutcome {
         pairs: out,
@@ -94,6 +100,10 @@ pub fn eval_pairs(
         plot_after,
     })
 }
+
+/// Pairs evaluated per thread between merges of their plot samples (each pair
+/// holds up to 2 x [`PLOT_SAMPLES_PER_PAIR`] values until merged).
+const PAIRS_PER_THREAD_BATCH: usize = 64;
 
 #[allow(clippy::too_many_arguments)]
 fn eval_pair(

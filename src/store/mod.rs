@@ -9,8 +9,8 @@
 //!                      level k+1 = 2x2 mean of the valid pixels of level k;
 //!                      attributes spatial:/proj: georeferencing (see geo_attrs)
 //! ```
-//! [`Store`] reads the catalog at open and opens the zarrs arrays lazily (once
-//! per DSM and level); [`StoreGrid`] gives pixel access to one level; `ingest`
+//! [`Store`] reads the catalog at open and opens the zarrs arrays lazily (kept
+//! open up to a bound, `open_arrays`); [`StoreGrid`] gives pixel access to one level; `ingest`
 //! writes the store from GeoTIFFs (or any [`source::RowSource`]).
 
 mod alloc;
@@ -23,6 +23,7 @@ pub mod geo_attrs;
 pub mod grid;
 pub mod ingest;
 pub mod lock;
+mod open_arrays;
 mod plan;
 mod pyramid;
 pub mod source;
@@ -45,6 +46,7 @@ pub use chunks::ChunkRecord;
 pub use grid::{ChunkReadError, StoreGrid};
 pub use ingest::{ingest, IngestError, IngestOptions, IngestReport};
 pub use lock::StoreLock;
+use open_arrays::{OpenArrays, MAX_OPEN_ARRAYS};
 pub use view::StorePyramid;
 
 use crate::geo::Crs;
@@ -172,7 +174,7 @@ pub struct Store {
     skipped: Vec<SkippedDsm>,
     /// Per DSM, which chunks were written (None: a store written before the record).
     records: Vec<Option<Arc<ChunkRecord>>>,
-    arrays: Mutex<HashMap<(usize, usize), Arc<LevelArray>>>,
+    arrays: Mutex<OpenArrays>,
 }
 
 /// A DSM listed in the catalog whose group could not be used.
@@ -241,7 +243,7 @@ impl Store {
             index,
             skipped,
             records,
-            arrays: Mutex::new(HashMap::new()),
+            arrays: Mutex::new(OpenArrays::new(MAX_OPEN_ARRAYS)),
         })
     }
 
@@ -298,14 +300,16 @@ impl Store {
             return Err(no_such());
         }
         let mut arrays = self.arrays.lock().unwrap_or_else(|p| p.into_inner());
-        if let Some(a) = arrays.get(&(dsm, level)) {
-            return Ok(a.clone());
+        if let Some(a) = arrays.get((dsm, level)) {
+            return Ok(a);
         }
         let node = format!("/{}/{}", meta.id, level);
-        let array = Array::open(self.fs.clone(), &node)
+        let mut array = Array::open(self.fs.clone(), &node)
             .map_err(|e| StoreError::zarr(self.root.join(&node[1..]).display(), e))?;
         validate::check_array(&array, &meta.levels[level])
             .map_err(|m| StoreError::invalid(&self.root.join(&node[1..]).join("zarr.json"), m))?;
+        // georeferencing attributes are for other tools; the catalog has them
+        array.attributes_mut().clear();
         let array = Arc::new(array);
         arrays.insert((dsm, level), array.clone());
         Ok(array)

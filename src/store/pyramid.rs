@@ -21,27 +21,44 @@ use zarrs::filesystem::FilesystemStore;
 
 use super::catalog::{Compression, LevelMeta, StorageSettings};
 use super::chunks::EmptyChunks;
-use super::{LevelArray, StoreError};
+use super::{validate, LevelArray, StoreError};
 
 /// Level shapes: level 0, then halved (rounding up) while the long side of the
-/// previous level is above `min_overview_px`.
+/// previous level is above `min_overview_px`; each level's chunk side is
+/// [`level_chunk`] of its size.
 pub fn level_shapes(width: u64, height: u64, settings: &StorageSettings) -> Vec<LevelMeta> {
-    let mut levels = vec![LevelMeta {
+    let level = |width: u64, height: u64| LevelMeta {
         width,
         height,
-        chunk: settings.chunk,
-    }];
+        chunk: level_chunk(settings.chunk, width, height),
+    };
+    let mut levels = vec![level(width, height)];
     let (mut w, mut h) = (width, height);
     while w.max(h) > settings.min_overview_px.max(1) {
         w = w.div_ceil(2);
         h = h.div_ceil(2);
-        levels.push(LevelMeta {
-            width: w,
-            height: h,
-            chunk: settings.chunk,
-        });
+        levels.push(level(w, h));
     }
     levels
+}
+
+/// The chunk side of a `width` x `height` level: the requested side, or, on a
+/// level smaller than that, its long side rounded up to a power of two (when
+/// that adds at most a quarter) or else to a multiple of 16, at least 16. A
+/// 64 px DSM is then one 64 px chunk (16 KiB decoded) instead of a 512 px one
+/// (1 MiB) that every reader decodes and caches.
+pub fn level_chunk(requested: u64, width: u64, height: u64) -> u64 {
+    let side = width.max(height).max(1);
+    if side >= requested {
+        return requested;
+    }
+    let power_of_two = side.next_power_of_two();
+    let rounded = if 4 * power_of_two <= 5 * side {
+        power_of_two
+    } else {
+        side.div_ceil(16) * 16
+    };
+    rounded.max(validate::CHUNK_RANGE_PX.0).min(requested)
 }
 
 /// Mean of the valid pixels of each 2x2 block of rows `a` and `b` (b = None for
@@ -237,7 +254,7 @@ impl PyramidWriter {
             let dir = group_dir.join(k.to_string());
             let mut builder = ArrayBuilder::new(
                 vec![shape.height, shape.width],
-                vec![settings.chunk, settings.chunk],
+                vec![shape.chunk, shape.chunk],
                 data_type::float32(),
                 f32::NAN,
             );
@@ -257,7 +274,7 @@ impl PyramidWriter {
                 dir,
                 width: shape.width as usize,
                 height: shape.height,
-                chunk: settings.chunk as usize,
+                chunk: shape.chunk as usize,
                 buf: Vec::new(),
                 scratch: Vec::new(),
                 chunk_rows_written: 0,
@@ -326,6 +343,25 @@ mod tests {
         assert_eq!(dims, vec![(1000, 300), (500, 150), (250, 75)]);
         assert_eq!(level_shapes(256, 10, &s).len(), 1);
         assert_eq!(level_shapes(257, 10, &s)[1].width, 129);
+    }
+
+    #[test]
+    fn small_levels_get_chunks_of_their_size() {
+        let s = StorageSettings::default();
+        let chunks =
+            |w, h| -> Vec<u64> { level_shapes(w, h, &s).iter().map(|l| l.chunk).collect() };
+        assert_eq!(chunks(64, 64), vec![64]);
+        assert_eq!(chunks(128, 100), vec![128, 64]);
+        assert_eq!(chunks(1000, 300), vec![512, 512, 256, 128, 64]);
+        // 300 px: a power of two would add 70 %, a multiple of 16 adds 1 %
+        assert_eq!(level_chunk(512, 300, 20), 304);
+        assert_eq!(level_chunk(512, 5, 3), 16);
+        assert_eq!(
+            level_chunk(48, 40, 40),
+            48,
+            "never above the requested side"
+        );
+        assert_eq!(level_chunk(512, 4096, 10), 512);
     }
 
     #[test]

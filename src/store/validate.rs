@@ -107,8 +107,8 @@ pub fn check_raster(width: u64, height: u64, gt: &GeoTransform) -> Result<(), St
     Ok(())
 }
 
-/// Levels: level 0 is the raster, each next level halves (rounding up), all
-/// with the stored chunk side, which is within [`CHUNK_RANGE_PX`].
+/// Levels: level 0 is the raster, each next level halves (rounding up); the
+/// stored chunk side is within [`CHUNK_RANGE_PX`] and no level's is above it.
 pub fn check_levels(meta: &DsmMeta) -> Result<(), String> {
     let (lo, hi) = CHUNK_RANGE_PX;
     let chunk = meta.storage.chunk;
@@ -141,9 +141,15 @@ pub fn check_levels(meta: &DsmMeta) -> Result<(), String> {
             ));
         }
     }
-    if let Some(k) = meta.levels.iter().position(|l| l.chunk != chunk) {
+    // Levels smaller than the stored side may have smaller chunks
+    // (`pyramid::level_chunk`); stores written before that have one side.
+    if let Some(k) = meta
+        .levels
+        .iter()
+        .position(|l| l.chunk < lo || l.chunk > chunk)
+    {
         return Err(format!(
-            "level {k} has chunk side {} px, the DSM {chunk}",
+            "level {k} has chunk side {} px, outside {lo}..={chunk} (the DSM's)",
             meta.levels[k].chunk
         ));
     }
@@ -236,6 +242,9 @@ mod tests {
     #[test]
     fn implausible_numbers_are_refused() {
         check_dsm(&sample_meta("a")).unwrap();
+        let mut small_overview_chunks = sample_meta("a");
+        small_overview_chunks.levels[1].chunk = 64;
+        check_dsm(&small_overview_chunks).unwrap();
         type Mutation = Box<dyn Fn(&mut DsmMeta)>;
         let cases: Vec<(&str, Mutation)> = vec![
             ("scale 1e308", Box::new(|m| m.geotransform.0[1] = 1e308)),
@@ -251,6 +260,7 @@ mod tests {
             ("no valid pixels", Box::new(|m| m.valid_count = 0)),
             ("chunk 0", Box::new(|m| m.levels[1].chunk = 0)),
             ("storage chunk 0", Box::new(|m| m.storage.chunk = 0)),
+            ("chunk above", Box::new(|m| m.levels[1].chunk = 1024)),
             ("level 1 wrong", Box::new(|m| m.levels[1].width = 7)),
             ("no levels", Box::new(|m| m.levels.clear())),
             ("geographic", Box::new(|m| m.crs.is_geographic = true)),

@@ -21,6 +21,7 @@ mod pair_real;
 mod pair_recovery;
 mod readme;
 mod resume;
+mod scale3;
 mod shard;
 mod store_reliability;
 mod ttp_collection;
