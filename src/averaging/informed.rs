@@ -20,7 +20,9 @@
 //! the translation at the edge's centre (`Edge::centre_j`); DSM rotations are tiny,
 //! so i's and j's axes agree to first order.
 
-use super::consistency::{active_components, mahalanobis_residuals, select, variance_factor};
+use super::consistency::{
+    active_components, mahalanobis_residuals, select, unreliable_weight, variance_factor,
+};
 use super::covariance::{node_sigmas, CovarianceMethod, NodeSigma};
 use super::joint::joint_node_sigmas;
 use super::{average, AveragingError, AveragingOptions, AveragingResult};
@@ -208,19 +210,15 @@ pub fn average_informed(
     let mut iterations = 0;
     // Iteratively reweighted (Cauchy, scale `outlier_sigma`) from the scalar
     // solution, every edge readmitted: the scalar rounds may have dropped good ones.
-    let mut mahalanobis = mahalanobis_residuals(graph, &omegas, &rotations, &translations);
-    for _ in 0..options.max_rounds {
-        let weights = cauchy_weights(&mahalanobis, &usable, options.outlier_sigma);
-        iterations += refine(
-            graph,
-            &omegas,
-            &weights,
-            options,
-            &mut rotations,
-            &mut translations,
-        );
-        mahalanobis = mahalanobis_residuals(graph, &omegas, &rotations, &translations);
-    }
+    let (rounds, mut mahalanobis) = reweighted_rounds(
+        graph,
+        &omegas,
+        &usable,
+        options,
+        options.max_rounds,
+        (&mut rotations, &mut translations),
+    );
+    iterations += rounds;
     // How far the unreliable edges really are from the reliable ones' solution
     // sets their weight; then the IRLS rounds again at that weight.
     let unreliable = unreliable_weight(information, &mahalanobis, &usable, options);
@@ -231,19 +229,16 @@ pub fn average_informed(
             ..*options
         };
         omegas = effective_information(information, &at);
-        mahalanobis = mahalanobis_residuals(graph, &omegas, &rotations, &translations);
-        for _ in 0..options.max_rounds / 2 {
-            let weights = cauchy_weights(&mahalanobis, &usable, options.outlier_sigma);
-            iterations += refine(
-                graph,
-                &omegas,
-                &weights,
-                options,
-                &mut rotations,
-                &mut translations,
-            );
-            mahalanobis = mahalanobis_residuals(graph, &omegas, &rotations, &translations);
-        }
+        let (rounds, residuals) = reweighted_rounds(
+            graph,
+            &omegas,
+            &usable,
+            options,
+            options.max_rounds / 2,
+            (&mut rotations, &mut translations),
+        );
+        iterations += rounds;
+        mahalanobis = residuals;
     }
     // Then hard decisions, a few edges per round (see `select`), the undecided
     // edges still Cauchy-weighted so that outliers not yet dropped do not bend
@@ -350,37 +345,25 @@ pub fn average_informed(
     })
 }
 
-/// The weight factor of the edges not `reliable` (did not converge, ambiguous):
-/// the ratio of the median squared Mahalanobis residual (rotation and
-/// translation, at their full information) of the reliable edges to theirs, at
-/// the current poses, clamped to [`InformedOptions::unreliable_factor`], 1]. An
-/// unconverged pair that stopped 30 cm off where converged ones are 6 cm off
-/// gets ~1/25 of its information: the variance-component estimate of its class,
-/// robust to the outliers among them (medians). With fewer than 10 edges in
-/// either class: the floor.
-fn unreliable_weight(
-    information: &[EdgeInformation],
-    mahalanobis: &[(f64, f64)],
+/// `rounds` refinements with Cauchy weights (scale `outlier_sigma`) of the
+/// residuals at the poses each starts from: CG iterations and the residuals at
+/// the final poses.
+fn reweighted_rounds(
+    graph: &PoseGraph,
+    omegas: &[Matrix6<f64>],
     usable: &[f64],
     options: &InformedOptions,
-) -> f64 {
-    let floor = options.unreliable_factor;
-    let class = |reliable: bool, scale: f64| {
-        let mut d2: Vec<f64> = (0..information.len())
-            .filter(|&k| information[k].reliable == reliable && usable[k] > 0.0)
-            .map(|k| (mahalanobis[k].0.powi(2) + mahalanobis[k].1.powi(2)) / scale)
-            .filter(|v| v.is_finite())
-            .collect();
-        if d2.len() < 10 {
-            return None;
-        }
-        let mid = d2.len() / 2;
-        Some(*d2.select_nth_unstable_by(mid, f64::total_cmp).1)
-    };
-    match (class(true, 1.0), class(false, floor)) {
-        (Some(good), Some(weak)) if weak > 0.0 => (good / weak).clamp(floor, 1.0),
-        _ => floor,
+    rounds: usize,
+    (rotations, translations): (&mut [Matrix3<f64>], &mut [Vector3<f64>]),
+) -> (usize, Vec<(f64, f64)>) {
+    let mut iterations = 0;
+    let mut mahalanobis = mahalanobis_residuals(graph, omegas, rotations, translations);
+    for _ in 0..rounds {
+        let weights = cauchy_weights(&mahalanobis, usable, options.outlier_sigma);
+        iterations += refine(graph, omegas, &weights, options, rotations, translations);
+        mahalanobis = mahalanobis_residuals(graph, omegas, rotations, translations);
     }
+    (iterations, mahalanobis)
 }
 
 /// active / (1 + (d / scale)^2), d the larger Mahalanobis residual of the edge.
