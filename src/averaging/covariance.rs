@@ -11,7 +11,7 @@
 use super::block::{BlockEdge, BlockSystem};
 use crate::graph::PoseGraph;
 use crate::rng::SplitMix64;
-use nalgebra::{DMatrix, Matrix3, Matrix6, Vector3};
+use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Vector3};
 
 /// How the marginal covariances are computed (see the module doc).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -166,31 +166,36 @@ fn exact(n: usize, edges: &[BlockEdge], null: &[Vec<Vector3<f64>>]) -> Vec<Vecto
         add(&mut h, i, j, &(-bt_om));
         add(&mut h, j, i, &(-bt_om.transpose()));
     }
-    let scale = (h.trace() / (3 * n) as f64).max(f64::MIN_POSITIVE);
-    let flat: Vec<nalgebra::DVector<f64>> = null
+    let flat: Vec<DVector<f64>> = null
         .iter()
-        .map(|v| nalgebra::DVector::from_iterator(3 * n, v.iter().flat_map(|b| [b.x, b.y, b.z])))
+        .map(|v| DVector::from_iterator(3 * n, v.iter().flat_map(|b| [b.x, b.y, b.z])))
         .collect();
-    for v in &flat {
-        h += v * v.transpose() * scale;
-    }
-    let Some(inverse) = h.cholesky().map(|c| c.inverse()) else {
+    let Some(diagonal) = gauge_free_diagonal(h, &flat) else {
         return vec![Vector3::repeat(f64::INFINITY); n];
     };
-    let mut projector = DMatrix::<f64>::identity(3 * n, 3 * n);
-    for v in &flat {
+    (0..n)
+        .map(|k| Vector3::from_fn(|a, _| diagonal[3 * k + a]))
+        .collect()
+}
+
+/// The diagonal of P H^+ P, P projecting out the orthonormal free motions
+/// `null` (H is regularised along them at its mean diagonal, then the projection
+/// removes them again); None when the regularised H is not positive definite.
+pub(crate) fn gauge_free_diagonal(
+    mut h: DMatrix<f64>,
+    null: &[DVector<f64>],
+) -> Option<DVector<f64>> {
+    let size = h.nrows();
+    let scale = (h.trace() / size.max(1) as f64).max(f64::MIN_POSITIVE);
+    for v in null {
+        h += v * v.transpose() * scale;
+    }
+    let inverse = h.cholesky()?.inverse();
+    let mut projector = DMatrix::<f64>::identity(size, size);
+    for v in null {
         projector -= v * v.transpose();
     }
-    let cov = &projector * inverse * &projector;
-    (0..n)
-        .map(|k| {
-            Vector3::new(
-                cov[(3 * k, 3 * k)],
-                cov[(3 * k + 1, 3 * k + 1)],
-                cov[(3 * k + 2, 3 * k + 2)],
-            )
-        })
-        .collect()
+    Some((&projector * inverse * &projector).diagonal())
 }
 
 fn project_out(x: &mut [Vector3<f64>], null: &[Vec<Vector3<f64>>]) {

@@ -28,6 +28,16 @@ fn anisotropic(rng: &mut SplitMix64, sigmas: [f64; 3]) -> (Matrix3<f64>, Vector3
     (block_inverse(&cov), draw)
 }
 
+/// `n` true poses: rotations of ~0.3 deg, shifts of ~2 m.
+fn truth_poses(rng: &mut SplitMix64, n: usize) -> Vec<Matrix4<f64>> {
+    (0..n)
+        .map(|_| {
+            let r = rotation_from_axis_angle(&normal3(rng, 0.3f64.to_radians()));
+            from_parts(&r, &normal3(rng, 2.0))
+        })
+        .collect()
+}
+
 fn case(width: usize, seed: u64, outlier_fraction: f64) -> Case {
     let mut rng = SplitMix64::new(seed);
     let n = width * width;
@@ -41,12 +51,7 @@ fn case(width: usize, seed: u64, outlier_fraction: f64) -> Case {
             )
         })
         .collect();
-    let truth: Vec<Matrix4<f64>> = (0..n)
-        .map(|_| {
-            let r = rotation_from_axis_angle(&normal3(&mut rng, 0.3f64.to_radians()));
-            from_parts(&r, &normal3(&mut rng, 2.0))
-        })
-        .collect();
+    let truth = truth_poses(&mut rng, n);
     let mut pairs = Vec::new();
     for k in 0..n {
         let (x, y) = (k % width, k / width);
@@ -317,12 +322,7 @@ fn case_chain(n: usize, seed: u64) -> Case {
     let positions: Vec<Vector3<f64>> = (0..n)
         .map(|k| Vector3::new(k as f64 * 100.0, 0.0, 200.0))
         .collect();
-    let truth: Vec<Matrix4<f64>> = (0..n)
-        .map(|_| {
-            let r = rotation_from_axis_angle(&normal3(&mut rng, 0.3f64.to_radians()));
-            from_parts(&r, &normal3(&mut rng, 2.0))
-        })
-        .collect();
+    let truth = truth_poses(&mut rng, n);
     let (mut edges, mut information) = (Vec::new(), Vec::new());
     for i in 0..n - 1 {
         let j = i + 1;

@@ -11,7 +11,7 @@
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Vector3, Vector6};
 
 use super::{linearise, pivots, JointSystem};
-use crate::averaging::covariance::{CovarianceMethod, NodeSigma};
+use crate::averaging::covariance::{gauge_free_diagonal, CovarianceMethod, NodeSigma};
 use crate::graph::PoseGraph;
 use crate::rng::SplitMix64;
 
@@ -123,22 +123,11 @@ fn exact(system: &JointSystem, null: &[Vec<Vector6<f64>>]) -> Vec<Vector6<f64>> 
         .iter()
         .map(|v| DVector::from_iterator(6 * n, v.iter().flat_map(|b| b.iter().copied())))
         .collect();
-    // Each part (rotations, shifts) regularised at its own scale along the free
-    // motions, which the projection removes again.
-    let scale = (h.trace() / (6 * n) as f64).max(f64::MIN_POSITIVE);
-    for v in &flat {
-        h += v * v.transpose() * scale;
-    }
-    let Some(inverse) = h.cholesky().map(|c| c.inverse()) else {
+    let Some(diagonal) = gauge_free_diagonal(h, &flat) else {
         return vec![Vector6::repeat(f64::INFINITY); n];
     };
-    let mut projector = DMatrix::<f64>::identity(6 * n, 6 * n);
-    for v in &flat {
-        projector -= v * v.transpose();
-    }
-    let cov = &projector * inverse * &projector;
     (0..n)
-        .map(|k| Vector6::from_fn(|a, _| cov[(6 * k + a, 6 * k + a)]))
+        .map(|k| Vector6::from_fn(|a, _| diagonal[6 * k + a]))
         .collect()
 }
 
