@@ -65,30 +65,53 @@ pub fn level_chunk(requested: u64, width: u64, height: u64) -> u64 {
 /// a last odd row); output width = ceil(width / 2).
 pub fn downsample_rows(a: &[f32], b: Option<&[f32]>, out: &mut Vec<f32>) {
     let w = a.len();
-    for j in 0..w.div_ceil(2) {
-        let (mut sum, mut n) = (0.0f64, 0u32);
-        let mut add = |v: f32| {
-            if !v.is_nan() {
-                sum += v as f64;
-                n += 1;
-            }
-        };
-        add(a[2 * j]);
-        if 2 * j + 1 < w {
-            add(a[2 * j + 1]);
-        }
-        if let Some(b) = b {
-            add(b[2 * j]);
-            if 2 * j + 1 < w {
-                add(b[2 * j + 1]);
+    match b {
+        Some(b) => {
+            let pairs = a.chunks_exact(2).zip(b.chunks_exact(2));
+            out.extend(pairs.map(|(a, b)| mean_of_valid([a[0], a[1], b[0], b[1]])));
+            if w % 2 == 1 {
+                out.push(mean_of_valid([a[w - 1], b[w - 1]]));
             }
         }
-        out.push(if n == 0 {
-            f32::NAN
-        } else {
-            (sum / n as f64) as f32
-        });
+        None => {
+            out.extend(a.chunks_exact(2).map(|a| mean_of_valid([a[0], a[1]])));
+            if w % 2 == 1 {
+                out.push(mean_of_valid([a[w - 1]]));
+            }
+        }
     }
+}
+
+/// Mean of the non-NaN `values` (summed in f64, in order), NaN when none.
+/// Branch-free so the compiler vectorises it: adding 0.0 for a NaN leaves
+/// the sum as skipping it would (the sum starts at +0.0 and so is never -0.0).
+#[inline(always)]
+fn mean_of_valid<const N: usize>(values: [f32; N]) -> f32 {
+    let (mut sum, mut n) = (0.0f64, 0u32);
+    for v in values {
+        let valid = !v.is_nan();
+        sum += if valid { v as f64 } else { 0.0 };
+        n += u32::from(valid);
+    }
+    if n == 0 {
+        f32::NAN
+    } else {
+        (sum / n as f64) as f32
+    }
+}
+
+/// The `c` x `c` chunk whose first column is `col0` of `rows` (whole rows of
+/// `width`, at most `c` of them), row-major, padded with NaN right and below.
+/// Each value is written once (no NaN prefill of the whole chunk).
+fn chunk_of(rows: &[f32], width: usize, col0: usize, c: usize) -> Vec<f32> {
+    let cols = c.min(width - col0);
+    let mut data = Vec::with_capacity(c * c);
+    for row in rows.chunks_exact(width) {
+        data.extend_from_slice(&row[col0..col0 + cols]);
+        data.resize(data.len() + c - cols, f32::NAN);
+    }
+    data.resize(c * c, f32::NAN);
+    data
 }
 
 struct LevelWriter {
@@ -124,13 +147,7 @@ impl LevelWriter {
         let empty: Vec<Option<u64>> = (0..chunks_x)
             .into_par_iter()
             .map(|cx| {
-                let mut data = vec![f32::NAN; c * c];
-                let col0 = cx * c;
-                let cols = c.min(w - col0);
-                for r in 0..n_rows {
-                    data[r * c..r * c + cols]
-                        .copy_from_slice(&rows[r * w + col0..r * w + col0 + cols]);
-                }
+                let data = chunk_of(rows, w, cx * c, c);
                 // Zarr leaves out chunks equal to the fill value, bit for bit.
                 let nan = f32::NAN.to_bits();
                 let is_empty = data.iter().all(|v| v.to_bits() == nan);

@@ -15,7 +15,7 @@ use tiff::decoder::{Decoder, DecodingResult, Limits};
 use tiff::{TiffError, TiffFormatError, TiffUnsupportedError};
 
 use super::convert::convert;
-use super::direct::{DirectCodec, InflateError};
+use super::direct::{DirectCodec, InflateError, Inflater};
 use super::layout::BlockLayout;
 use super::GeoTiffError;
 
@@ -106,8 +106,8 @@ pub(super) fn tiff_error(path: &Path, e: TiffError) -> GeoTiffError {
 
 struct Worker {
     decoder: TiffDecoder,
-    /// zlib state of the direct codec (reset per block).
-    inflater: flate2::Decompress,
+    /// Inflate state of the direct codec.
+    inflater: Inflater,
     /// Decoded bytes of a block whose data fills its rows.
     bytes: Vec<u8>,
     /// Decoded padded rows of a right-edge tile.
@@ -346,7 +346,7 @@ impl Worker {
     fn new(decoder: TiffDecoder) -> Worker {
         Worker {
             decoder,
-            inflater: flate2::Decompress::new(true),
+            inflater: Inflater::default(),
             bytes: Vec::new(),
             padded: DecodingResult::U8(Vec::new()),
         }

@@ -11,6 +11,11 @@
 //! written as `f32` (no-data -> NaN) straight into the caller's row: one
 //! pass over the decoded bytes, no allocation per block. Any other encoding
 //! goes through the `tiff` crate (see `decode`).
+//!
+//! Inflating is libdeflate's whole-buffer decoder (about 1.4x zlib-rs on
+//! GDAL's predictor-3 tiles); a block it does not decode to exactly its size
+//! is decoded again by zlib-rs, whose outcome (and error kind) is the answer,
+//! so damaged files are reported as before.
 
 use flate2::{Decompress, FlushDecompress, Status};
 
@@ -56,26 +61,16 @@ impl DirectCodec {
     /// `tiff` crate does.
     pub fn inflate(
         &self,
-        inflater: &mut Decompress,
+        inflater: &mut Inflater,
         compressed: &[u8],
         out: &mut Vec<u8>,
         len: usize,
     ) -> Result<(), InflateError> {
-        out.clear();
+        // Every byte is overwritten by a successful decode: no zeroing.
         out.resize(len, 0);
-        inflater.reset(true);
-        let status = inflater
-            .decompress(compressed, out, FlushDecompress::Finish)
-            .map_err(|e| InflateError::Corrupt(format!("deflate stream does not decode: {e}")))?;
-        let produced = inflater.total_out() as usize;
-        match status {
-            _ if produced >= len => Ok(()),
-            Status::StreamEnd => Err(InflateError::Corrupt(format!(
-                "the deflate stream ends after {produced} of {len} decoded bytes"
-            ))),
-            Status::Ok | Status::BufError => Err(InflateError::Truncated(format!(
-                "data ends early ({produced} of {len} decoded bytes)"
-            ))),
+        match inflater.fast.zlib_decompress(compressed, out) {
+            Ok(n) if n == len => Ok(()),
+            _ => inflate_exact(&mut inflater.exact, compressed, out, len),
         }
     }
 
@@ -124,14 +119,87 @@ impl DirectCodec {
     }
 }
 
+/// The decoders of one worker: libdeflate first, zlib-rs for the blocks it
+/// does not decode cleanly.
+pub(super) struct Inflater {
+    fast: libdeflater::Decompressor,
+    exact: Decompress,
+}
+
+impl Default for Inflater {
+    fn default() -> Inflater {
+        Inflater {
+            fast: libdeflater::Decompressor::new(),
+            exact: Decompress::new(true),
+        }
+    }
+}
+
+/// zlib-rs's reading of a block: Ok once `len` bytes are decoded, else why not.
+fn inflate_exact(
+    inflater: &mut Decompress,
+    compressed: &[u8],
+    out: &mut [u8],
+    len: usize,
+) -> Result<(), InflateError> {
+    inflater.reset(true);
+    let status = inflater
+        .decompress(compressed, out, FlushDecompress::Finish)
+        .map_err(|e| InflateError::Corrupt(format!("deflate stream does not decode: {e}")))?;
+    let produced = inflater.total_out() as usize;
+    match status {
+        _ if produced >= len => Ok(()),
+        Status::StreamEnd => Err(InflateError::Corrupt(format!(
+            "the deflate stream ends after {produced} of {len} decoded bytes"
+        ))),
+        Status::Ok | Status::BufError => Err(InflateError::Truncated(format!(
+            "data ends early ({produced} of {len} decoded bytes)"
+        ))),
+    }
+}
+
 /// Undo the byte-wise horizontal differencing of predictor 3 (one sample per
 /// pixel): each byte is the running sum of the stored differences.
 fn undo_byte_differences(row: &mut [u8]) {
+    // SAFETY: SSE2 is part of the x86-64 baseline, so every x86-64 CPU has it.
+    #[cfg(target_arch = "x86_64")]
+    let (mut acc, row) = unsafe { prefix_sums_sse2(row) };
+    #[cfg(not(target_arch = "x86_64"))]
     let mut acc = 0u8;
     for b in row.iter_mut() {
         acc = acc.wrapping_add(*b);
         *b = acc;
     }
+}
+
+/// The running byte sums of the whole 16-byte groups of `row`, in place,
+/// with SSE2 (part of every x86-64): a byte-at-a-time running sum is a chain
+/// of dependent additions, ~60 % of the predictor's time; here each group
+/// takes four shifted additions and one carry from the group before. Returns
+/// the last sum and the bytes left (fewer than 16) for the scalar loop.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "sse2")]
+fn prefix_sums_sse2(row: &mut [u8]) -> (u8, &mut [u8]) {
+    use std::arch::x86_64::*;
+    let mut groups = row.chunks_exact_mut(16);
+    let mut carry = _mm_setzero_si128();
+    for group in &mut groups {
+        let at = group.as_mut_ptr().cast::<__m128i>();
+        // SAFETY: `group` is 16 readable bytes; the load is unaligned.
+        let mut x = unsafe { _mm_loadu_si128(at) };
+        x = _mm_add_epi8(x, _mm_slli_si128::<1>(x));
+        x = _mm_add_epi8(x, _mm_slli_si128::<2>(x));
+        x = _mm_add_epi8(x, _mm_slli_si128::<4>(x));
+        x = _mm_add_epi8(x, _mm_slli_si128::<8>(x));
+        x = _mm_add_epi8(x, carry);
+        // SAFETY: `group` is 16 writable bytes; the store is unaligned.
+        unsafe { _mm_storeu_si128(at, x) };
+        // Broadcast byte 15: pair it up, spread its word, take the high half.
+        let words = _mm_shufflehi_epi16::<0xFF>(_mm_unpackhi_epi8(x, x));
+        carry = _mm_unpackhi_epi64(words, words);
+    }
+    let last = _mm_cvtsi128_si32(carry) as u8;
+    (last, groups.into_remainder())
 }
 
 #[cfg(test)]
@@ -180,7 +248,7 @@ mod tests {
             })
             .collect();
         let codec = DirectCodec::for_tags(8, 3, true, 1, true).unwrap();
-        let (mut inflater, mut buf) = (Decompress::new(true), Vec::new());
+        let (mut inflater, mut buf) = (Inflater::default(), Vec::new());
         codec
             .inflate(
                 &mut inflater,
@@ -208,7 +276,7 @@ mod tests {
         let values = [1.5f32, -2.25, 3.0];
         let be: Vec<u8> = values.iter().flat_map(|v| v.to_be_bytes()).collect();
         let codec = DirectCodec::for_tags(32946, 1, true, 1, false).unwrap();
-        let (mut inflater, mut buf) = (Decompress::new(true), Vec::new());
+        let (mut inflater, mut buf) = (Inflater::default(), Vec::new());
         codec
             .inflate(&mut inflater, &zlib(&be), &mut buf, 12)
             .unwrap();
@@ -228,6 +296,28 @@ mod tests {
         let garbage = [0x78, 0x9c, 0xff, 0xff, 0xff, 0xff];
         let err = codec.inflate(&mut inflater, &garbage, &mut buf, 12);
         assert!(matches!(err, Err(InflateError::Corrupt(_))), "{err:?}");
+    }
+
+    #[test]
+    fn running_byte_sums_match_the_scalar_definition() {
+        let mut seed = 1u32;
+        for len in [0, 1, 15, 16, 17, 31, 64, 1024, 1027] {
+            let row: Vec<u8> = (0..len)
+                .map(|_| {
+                    seed = seed.wrapping_mul(1664525).wrapping_add(1013904223);
+                    (seed >> 24) as u8
+                })
+                .collect();
+            let mut want = row.clone();
+            let mut acc = 0u8;
+            for b in want.iter_mut() {
+                acc = acc.wrapping_add(*b);
+                *b = acc;
+            }
+            let mut got = row;
+            undo_byte_differences(&mut got);
+            assert_eq!(got, want, "length {len}");
+        }
     }
 
     #[test]
