@@ -65,18 +65,26 @@ pub fn level_chunk(requested: u64, width: u64, height: u64) -> u64 {
 /// a last odd row); output width = ceil(width / 2).
 pub fn downsample_rows(a: &[f32], b: Option<&[f32]>, out: &mut Vec<f32>) {
     let w = a.len();
+    let start = out.len();
+    out.resize(start + w.div_ceil(2), 0.0);
+    let dst = &mut out[start..start + w / 2];
     match b {
         Some(b) => {
-            let pairs = a.chunks_exact(2).zip(b.chunks_exact(2));
-            out.extend(pairs.map(|(a, b)| mean_of_valid([a[0], a[1], b[0], b[1]])));
+            let b = &b[..w];
+            for (j, o) in dst.iter_mut().enumerate() {
+                let (a, b) = (&a[2 * j..2 * j + 2], &b[2 * j..2 * j + 2]);
+                *o = mean_of_valid([a[0], a[1], b[0], b[1]]);
+            }
             if w % 2 == 1 {
-                out.push(mean_of_valid([a[w - 1], b[w - 1]]));
+                out[start + w / 2] = mean_of_valid([a[w - 1], b[w - 1]]);
             }
         }
         None => {
-            out.extend(a.chunks_exact(2).map(|a| mean_of_valid([a[0], a[1]])));
+            for (j, o) in dst.iter_mut().enumerate() {
+                *o = mean_of_valid([a[2 * j], a[2 * j + 1]]);
+            }
             if w % 2 == 1 {
-                out.push(mean_of_valid([a[w - 1]]));
+                out[start + w / 2] = mean_of_valid([a[w - 1]]);
             }
         }
     }
@@ -151,8 +159,10 @@ impl LevelWriter {
                 // Zarr leaves out chunks equal to the fill value, bit for bit.
                 let nan = f32::NAN.to_bits();
                 let is_empty = data.iter().all(|v| v.to_bits() == nan);
+                // A slice, not the Vec: zarrs copies a `Vec<f32>` into a new
+                // `Vec<u8>` (their alignments differ) but borrows a slice's bytes.
                 array
-                    .store_chunk(&[cy, cx as u64], data)
+                    .store_chunk(&[cy, cx as u64], &data[..])
                     .map_err(|e| StoreError::zarr(dir.join(format!("c/{cy}/{cx}")).display(), e))?;
                 Ok(is_empty.then_some(cy * chunks_x as u64 + cx as u64))
             })
@@ -379,6 +389,83 @@ mod tests {
             "never above the requested side"
         );
         assert_eq!(level_chunk(512, 4096, 10), 512);
+    }
+
+    /// The former branchy implementation, the reference for bit equality.
+    fn downsample_reference(a: &[f32], b: Option<&[f32]>) -> Vec<f32> {
+        let w = a.len();
+        let mut out = Vec::new();
+        for j in 0..w.div_ceil(2) {
+            let (mut sum, mut n) = (0.0f64, 0u32);
+            let mut add = |v: f32| {
+                if !v.is_nan() {
+                    sum += v as f64;
+                    n += 1;
+                }
+            };
+            add(a[2 * j]);
+            if 2 * j + 1 < w {
+                add(a[2 * j + 1]);
+            }
+            if let Some(b) = b {
+                add(b[2 * j]);
+                if 2 * j + 1 < w {
+                    add(b[2 * j + 1]);
+                }
+            }
+            out.push(if n == 0 {
+                f32::NAN
+            } else {
+                (sum / n as f64) as f32
+            });
+        }
+        out
+    }
+
+    #[test]
+    fn downsample_is_bit_identical_to_the_reference() {
+        let mut seed = 3u64;
+        let mut next = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            match seed >> 61 {
+                0 => f32::NAN,
+                1 => -0.0,
+                2 => 0.0,
+                _ => ((seed >> 20) as f32 / (1u64 << 44) as f32 - 0.3) * 4000.0,
+            }
+        };
+        for w in [1usize, 2, 3, 7, 64, 65] {
+            let a: Vec<f32> = (0..w).map(|_| next()).collect();
+            let b: Vec<f32> = (0..w).map(|_| next()).collect();
+            for rows in [Some(&b[..]), None] {
+                let mut got = vec![42.0];
+                downsample_rows(&a, rows, &mut got);
+                let want = downsample_reference(&a, rows);
+                let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&got[1..]), bits(&want), "width {w}");
+                assert_eq!(got[0], 42.0, "appends");
+            }
+        }
+    }
+
+    #[test]
+    fn chunks_are_cut_from_rows_and_padded_with_nan() {
+        // 3 rows of 5, chunk side 4: chunk 0 = cols 0..4, chunk 1 = col 4 + padding
+        let rows: Vec<f32> = (0..15).map(|v| v as f32).collect();
+        let c0 = chunk_of(&rows, 5, 0, 4);
+        assert_eq!(
+            &c0[..12],
+            &[0., 1., 2., 3., 5., 6., 7., 8., 10., 11., 12., 13.]
+        );
+        assert!(c0[12..].iter().all(|v| v.is_nan()));
+        let c1 = chunk_of(&rows, 5, 4, 4);
+        assert_eq!((c1.len(), c1[0], c1[4], c1[8]), (16, 4.0, 9.0, 14.0));
+        let valid = [0, 4, 8];
+        assert!((0..16)
+            .filter(|i| !valid.contains(i))
+            .all(|i| c1[i].is_nan()));
     }
 
     #[test]
