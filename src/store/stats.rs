@@ -141,7 +141,20 @@ impl BlockSums {
     fn of_band(band: &mut [f32], width: usize, row0: u64, k: f64) -> BlockSums {
         let mut s = BlockSums::default();
         for (r, row) in band.chunks_exact_mut(width).enumerate() {
-            let RowSums { n, s1, s2, lo, hi } = RowSums::of_row(row, k);
+            let (mut n, mut s1, mut s2) = (0u64, 0.0f64, 0.0f64);
+            let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+            for v in row.iter_mut() {
+                if v.is_finite() {
+                    let d = *v as f64 - k;
+                    n += 1;
+                    s1 += d;
+                    s2 += d * d;
+                    lo = lo.min(*v);
+                    hi = hi.max(*v);
+                } else {
+                    *v = f32::NAN;
+                }
+            }
             if n == 0 {
                 continue;
             }
@@ -181,56 +194,6 @@ impl BlockSums {
             min: a.min.min(b.min),
             max: a.max.max(b.max),
             bbox,
-        }
-    }
-}
-
-/// Sums of the finite values of one row around a shift.
-struct RowSums {
-    n: u64,
-    s1: f64,
-    s2: f64,
-    lo: f32,
-    hi: f32,
-}
-
-impl RowSums {
-    /// Lanes summed independently: a single running sum is one long chain
-    /// of dependent additions (the statistics were ~9 % of an ingest's CPU);
-    /// eight branch-free lanes let the compiler vectorise.
-    const LANES: usize = 8;
-
-    /// Canonicalise the non-finite values of `row` to NaN and sum the rest
-    /// around `k`.
-    fn of_row(row: &mut [f32], k: f64) -> RowSums {
-        const L: usize = RowSums::LANES;
-        let (mut n, mut s1, mut s2) = ([0u64; L], [0.0f64; L], [0.0f64; L]);
-        let (mut lo, mut hi) = ([f32::INFINITY; L], [f32::NEG_INFINITY; L]);
-        let mut add = |j: usize, v: &mut f32| {
-            let finite = v.is_finite();
-            let d = if finite { *v as f64 - k } else { 0.0 };
-            n[j] += u64::from(finite);
-            s1[j] += d;
-            s2[j] += d * d;
-            lo[j] = if finite { lo[j].min(*v) } else { lo[j] };
-            hi[j] = if finite { hi[j].max(*v) } else { hi[j] };
-            *v = if finite { *v } else { f32::NAN };
-        };
-        let mut lanes = row.chunks_exact_mut(L);
-        for group in &mut lanes {
-            for (j, v) in group.iter_mut().enumerate() {
-                add(j, v);
-            }
-        }
-        for v in lanes.into_remainder() {
-            add(0, v);
-        }
-        RowSums {
-            n: n.iter().sum(),
-            s1: s1.iter().sum(),
-            s2: s2.iter().sum(),
-            lo: lo.iter().copied().fold(f32::INFINITY, f32::min),
-            hi: hi.iter().copied().fold(f32::NEG_INFINITY, f32::max),
         }
     }
 }
