@@ -16,6 +16,7 @@ mod fuse_eval;
 mod fuzz;
 mod icpwire;
 mod ingest;
+mod ingest4;
 mod outputs;
 mod pair_real;
 mod pair_recovery;
