@@ -45,7 +45,7 @@ default_names="dsmstream dsmstream_zstd3 gdal_default gdal_matched"
 [ -n "${BASE_BIN:-}" ] && default_names="dsmstream dsmstream_base dsmstream_zstd3 gdal_default gdal_matched"
 read -r -a NAMES <<<"${NAMES:-$default_names}"
 
-declare -A WALL CPU RSS BYTES
+declare -A WALL CPU USR SYS RSS BYTES
 for run in $(seq 1 "$RUNS"); do
   for name in "${NAMES[@]}"; do
     OUT="$BENCH_DIR/out_$name.zarr"
@@ -55,9 +55,11 @@ for run in $(seq 1 "$RUNS"); do
     /usr/bin/time -v $cmd 2>"$log" >/dev/null
     wall=$(awk -F': ' '/Elapsed \(wall clock\)/{n=split($2,a,":"); s=0; for(i=1;i<=n;i++) s=s*60+a[i]; print s}' "$log")
     cpu=$(awk -F': ' '/User time/{u=$2} /System time/{s=$2} END{print u+s}' "$log")
+    usr=$(awk -F': ' '/User time/{print $2}' "$log")
+    sys=$(awk -F': ' '/System time/{print $2}' "$log")
     rss=$(awk -F': ' '/Maximum resident/{printf "%.0f", $2/1024}' "$log")
     bytes=$(du -sm "$OUT" | cut -f1)
-    WALL[$name]+="$wall "; CPU[$name]+="$cpu "; RSS[$name]+="$rss "; BYTES[$name]=$bytes
+    WALL[$name]+="$wall "; CPU[$name]+="$cpu "; USR[$name]+="$usr "; SYS[$name]+="$sys "; RSS[$name]+="$rss "; BYTES[$name]=$bytes
     echo "run $run $name: wall ${wall}s cpu ${cpu}s rss ${rss}MB out ${bytes}MB (load $(cut -d' ' -f1 /proc/loadavg))" >&2
     rm -rf "$OUT"
   done
@@ -68,8 +70,8 @@ median() { tr ' ' '\n' | grep -v '^$' | sort -g | awk '{a[NR]=$1} END{print (NR%
 echo
 echo "input: $INPUT ($(du -m "$INPUT" | cut -f1) MB), $RUNS runs each, $(date -u +%Y-%m-%d), $(nproc) cores, $(gdalinfo --version)"
 echo
-echo "| tool | wall median (s) | wall runs (s) | CPU user+sys median (s) | peak RSS median (MB) | RSS runs (MB) | output (MB) |"
-echo "|---|---|---|---|---|---|---|"
+echo "| tool | wall median (s) | wall runs (s) | CPU user+sys median (s) | CPU runs (s) | user / sys medians (s) | peak RSS median (MB) | RSS runs (MB) | output (MB) |"
+echo "|---|---|---|---|---|---|---|---|---|"
 for name in "${NAMES[@]}"; do
-  echo "| $name | $(echo "${WALL[$name]}" | median) | ${WALL[$name]% } | $(echo "${CPU[$name]}" | median) | $(echo "${RSS[$name]}" | median) | ${RSS[$name]% } | ${BYTES[$name]} |"
+  echo "| $name | $(echo "${WALL[$name]}" | median) | ${WALL[$name]% } | $(echo "${CPU[$name]}" | median) | ${CPU[$name]% } | $(echo "${USR[$name]}" | median) / $(echo "${SYS[$name]}" | median) | $(echo "${RSS[$name]}" | median) | ${RSS[$name]% } | ${BYTES[$name]} |"
 done
