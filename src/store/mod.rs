@@ -23,6 +23,7 @@ pub mod geo_attrs;
 pub mod grid;
 pub mod ingest;
 pub mod lock;
+mod mean2x2;
 mod open_arrays;
 mod plan;
 mod pyramid;
