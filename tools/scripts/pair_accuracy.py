@@ -30,7 +30,7 @@ def run(*cmd):
     return subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
 
 def errors(truth, doc, a, b):
-    return pair_errors(truth, doc["result"]["m_world"], a, b)
+    return pair_errors(truth, doc["result"]["matrix_world"], a, b)
 
 with tempfile.TemporaryDirectory() as tmp:
     stores = []
