@@ -31,6 +31,7 @@ use crate::graph::{EdgeSigma, PoseGraph};
 use crate::poses::rigid::{from_parts, rotation, translation};
 use nalgebra::{Matrix3, Matrix6, Vector3};
 use refine::refine;
+use reseed::reseed;
 
 /// What one edge knows, about the axes of i's frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -219,6 +220,28 @@ pub fn average_informed(
         (&mut rotations, &mut translations),
     );
     iterations += rounds;
+    // A node started in an outlier's basin stays there under the Cauchy rounds:
+    // move it to the proposal of one of its edges when that fits its edges better.
+    let seeded = reseed(
+        graph,
+        &omegas,
+        &usable,
+        &mahalanobis,
+        options.outlier_sigma,
+        (&mut rotations, &mut translations),
+    );
+    if seeded.moves > 0 {
+        let (rounds, residuals) = reweighted_rounds(
+            graph,
+            &omegas,
+            &usable,
+            options,
+            options.max_rounds,
+            (&mut rotations, &mut translations),
+        );
+        iterations += rounds;
+        mahalanobis = residuals;
+    }
     // How far the unreliable edges really are from the reliable ones' solution
     // sets their weight; then the IRLS rounds again at that weight.
     let unreliable = unreliable_weight(information, &mahalanobis, &usable, options);
@@ -465,5 +488,6 @@ fn node_status(
 }
 
 mod refine;
+mod reseed;
 #[cfg(test)]
 mod tests;
