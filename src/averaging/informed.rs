@@ -31,7 +31,7 @@ use crate::graph::{EdgeSigma, PoseGraph};
 use crate::poses::rigid::{from_parts, rotation, translation};
 use nalgebra::{Matrix3, Matrix6, Vector3};
 use refine::refine;
-use reseed::reseed;
+use reseed::{reseed, unopposed};
 
 /// What one edge knows, about the axes of i's frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -279,6 +279,19 @@ pub fn average_informed(
             .filter(|&k| active[k] == 0.0 && usable[k] > 0.0 && !readmitted[k])
             .filter(|&k| mahalanobis[k].0.max(mahalanobis[k].1) < options.outlier_sigma)
             .collect();
+        let mut back = back;
+        let candidates: Vec<f64> = (0..graph.edges.len())
+            .map(|k| if readmitted[k] { 0.0 } else { usable[k] })
+            .collect();
+        let unopposed_edges = unopposed(
+            graph,
+            &omegas,
+            (&active, &candidates),
+            &mahalanobis,
+            options.outlier_sigma,
+            (&mut rotations, &mut translations),
+        );
+        back.extend(unopposed_edges);
         let changed = !(dropped.is_empty() && downweighted.is_empty() && back.is_empty());
         if !changed && full_weight {
             break;
