@@ -9,9 +9,13 @@
 //!    the rotations (right perturbations), then the linear translation solve;
 //! 3. `max_rounds` iteratively reweighted refinements with Cauchy weights
 //!    1 / (1 + (d / outlier_sigma)^2) of the Mahalanobis residual
-//!    d = sqrt(r^T Omega r) (every edge readmitted), then rounds that drop edges
-//!    whose d exceeds max(`outlier_sigma`, k x median) (all at once; bridges
-//!    down-weighted instead of dropped), the rest at full weight;
+//!    d = sqrt(r^T Omega r) (every edge readmitted); then the re-seeding
+//!    ([`reseed`]: a node or group sitting in an outlier's basin moves to the
+//!    rigid proposal of one of its boundary edges when that lowers the robust
+//!    cost) and the rounds again; then rounds that drop edges whose d exceeds
+//!    max(`outlier_sigma`, k x median) (all at once; bridges down-weighted
+//!    instead of dropped), readmitting dropped edges that fit again or that no
+//!    kept edge opposes ([`reseed::unopposed`]), the rest at full weight;
 //! 4. per-node standard errors ([`super::covariance`]) times the a-posteriori
 //!    standard deviation of unit weight when it exceeds one (the edges disagree
 //!    more than their own sigmas say: [`variance_factor`]), and status.
@@ -230,6 +234,12 @@ pub fn average_informed(
         options.outlier_sigma,
         (&mut rotations, &mut translations),
     );
+    tracing::info!(
+        groups = seeded.moves,
+        nodes = seeded.nodes_moved,
+        sweeps = seeded.sweeps,
+        "groups re-seeded"
+    );
     if seeded.moves > 0 {
         let (rounds, residuals) = reweighted_rounds(
             graph,
@@ -291,6 +301,9 @@ pub fn average_informed(
             options.outlier_sigma,
             (&mut rotations, &mut translations),
         );
+        if !unopposed_edges.is_empty() {
+            tracing::info!(edges = unopposed_edges.len(), "unopposed edges readmitted");
+        }
         back.extend(unopposed_edges);
         let changed = !(dropped.is_empty() && downweighted.is_empty() && back.is_empty());
         if !changed && full_weight {

@@ -18,7 +18,10 @@
 //! outlier.
 //!
 //! Chains and trees have no redundancy: every proposal fits its edges exactly,
-//! costs equal, nothing moves.
+//! costs equal, nothing moves. Known limit: a path of nodes hanging on an
+//! outlier is all bridges, so it moves node by node, and a node whose one
+//! consistent edge holds it to the rest cannot move alone (its inner edge
+//! objects); only 2-edge-connected groups move as one.
 
 use nalgebra::{Matrix3, Matrix6, Vector3};
 
@@ -364,6 +367,83 @@ mod tests {
             "{:?}",
             translations[0]
         );
+    }
+
+    /// A triangle of exact edges hangs on an outlier edge (moved rigidly to
+    /// its proposal) while two exact edges from the rest disagree: the three
+    /// nodes move back as one group. (A path hanging on the outlier would be
+    /// all bridges: groups are 2-edge-connected, a known limit.)
+    #[test]
+    fn a_group_on_an_outlier_bridge_moves_back_as_one() {
+        let truth: Vec<Matrix4<f64>> = (0..8)
+            .map(|k| {
+                pose(
+                    0.1 * k as f64,
+                    [100.0 * (k % 3) as f64, 80.0 * (k / 3) as f64, 0.5],
+                )
+            })
+            .collect();
+        let exact =
+            |i: usize, j: usize| Edge::new(i, j, inverse_rigid(&truth[i]) * truth[j], 0.5, 0.1);
+        let mut edges: Vec<Edge> = [
+            (0, 1),
+            (1, 2),
+            (2, 3),
+            (3, 0),
+            (0, 2),
+            (1, 3),
+            (5, 6),
+            (6, 7),
+            (5, 7),
+            (1, 5),
+            (2, 6),
+        ]
+        .iter()
+        .map(|&(i, j)| exact(i, j))
+        .collect();
+        let bad = pose(4.0, [12.0, -7.0, 2.0]) * inverse_rigid(&truth[3]) * truth[5];
+        edges.push(Edge::new(3, 5, bad, 0.5, 0.1));
+        let graph = PoseGraph { n: 8, edges };
+        let omegas = vec![Matrix6::identity() * 1e4; graph.edges.len()];
+        let weights = vec![1.0; graph.edges.len()];
+        let mut rotations: Vec<Matrix3<f64>> = truth
+            .iter()
+            .map(|m| m.fixed_view::<3, 3>(0, 0).into_owned())
+            .collect();
+        let mut translations: Vec<Vector3<f64>> = truth
+            .iter()
+            .map(|m| m.fixed_view::<3, 1>(0, 3).into_owned())
+            .collect();
+        let (r5, t5) = proposal(&graph.edges[11], 5, (&rotations, &translations));
+        let r_g = r5 * rotations[5].transpose();
+        let t_g = t5 - r_g * translations[5];
+        for m in [5, 6, 7] {
+            translations[m] = r_g * translations[m] + t_g;
+            rotations[m] = r_g * rotations[m];
+        }
+        let residuals = crate::averaging::consistency::mahalanobis_residuals(
+            &graph,
+            &omegas,
+            &rotations,
+            &translations,
+        );
+        let done = reseed(
+            &graph,
+            &omegas,
+            &weights,
+            &residuals,
+            5.0,
+            (&mut rotations, &mut translations),
+        );
+        assert_eq!((done.moves, done.nodes_moved), (1, 3));
+        for m in [5, 6, 7] {
+            let t = truth[m].fixed_view::<3, 1>(0, 3).into_owned();
+            assert!(
+                (translations[m] - t).norm() < 1e-9,
+                "node {m}: {:?}",
+                translations[m]
+            );
+        }
     }
 
     /// In a chain every proposal fits: nothing moves.

@@ -316,7 +316,7 @@ fn behind_kept_outliers(case: &Case, result: &InformedResult, seed: u64) -> Vec<
 /// per seed hang on an outlier; no identifiable node is in an outlier's basin
 /// (metres or tenths of degrees off); the nodes nothing places are not
 /// reported `Constrained` unless an outlier holds them. Before the re-seeding
-/// (main 37e8e4d) seed 3 left ten identifiable nodes on outliers.
+/// (main 37e8e4d) seed 3 left twelve nodes behind kept outliers.
 #[test]
 fn outliers_never_hold_an_identifiable_node() {
     for seed in 1..=4 {
