@@ -8,7 +8,7 @@ use nalgebra::{Matrix3, Matrix6, Vector3};
 
 use super::informed::{EdgeInformation, InformedOptions};
 use super::robust::rotation_vector;
-use crate::graph::{PoseGraph, UnionFind};
+use crate::graph::{Edge, PoseGraph, UnionFind};
 
 /// The a-posteriori variance of unit weight of the edges kept at full weight:
 /// the sum of their squared Mahalanobis residuals (rotation and translation)
@@ -53,18 +53,28 @@ pub(super) fn mahalanobis_residuals(
         .iter()
         .zip(omegas)
         .map(|(e, o)| {
-            let (r_i, r_j) = (rotations[e.i], rotations[e.j]);
-            let rr = rotation_vector(&e.rotation().tr_mul(&r_i.tr_mul(&r_j)));
-            let rt = r_i.tr_mul(&(r_j * e.centre_j + translations[e.j] - translations[e.i]))
-                - e.apply(&e.centre_j);
-            let q =
-                |m: Matrix3<f64>, v: Vector3<f64>| (v.transpose() * m * v)[(0, 0)].max(0.0).sqrt();
-            (
-                q(o.fixed_view::<3, 3>(0, 0).into_owned(), rr),
-                q(o.fixed_view::<3, 3>(3, 3).into_owned(), rt),
-            )
+            let pose_i = (&rotations[e.i], &translations[e.i]);
+            let pose_j = (&rotations[e.j], &translations[e.j]);
+            edge_mahalanobis(e, o, pose_i, pose_j)
         })
         .collect()
+}
+
+/// The (rotation, translation) Mahalanobis residual of one edge at the poses
+/// (R, t) of its nodes i and j.
+pub(super) fn edge_mahalanobis(
+    e: &Edge,
+    omega: &Matrix6<f64>,
+    (r_i, t_i): (&Matrix3<f64>, &Vector3<f64>),
+    (r_j, t_j): (&Matrix3<f64>, &Vector3<f64>),
+) -> (f64, f64) {
+    let rr = rotation_vector(&e.rotation().tr_mul(&r_i.tr_mul(r_j)));
+    let rt = r_i.tr_mul(&(r_j * e.centre_j + t_j - t_i)) - e.apply(&e.centre_j);
+    let q = |m: Matrix3<f64>, v: Vector3<f64>| (v.transpose() * m * v)[(0, 0)].max(0.0).sqrt();
+    (
+        q(omega.fixed_view::<3, 3>(0, 0).into_owned(), rr),
+        q(omega.fixed_view::<3, 3>(3, 3).into_owned(), rt),
+    )
 }
 
 pub(super) type Round = (Vec<usize>, Vec<(usize, f64)>);

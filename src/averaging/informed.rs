@@ -9,9 +9,13 @@
 //!    the rotations (right perturbations), then the linear translation solve;
 //! 3. `max_rounds` iteratively reweighted refinements with Cauchy weights
 //!    1 / (1 + (d / outlier_sigma)^2) of the Mahalanobis residual
-//!    d = sqrt(r^T Omega r) (every edge readmitted), then rounds that drop edges
-//!    whose d exceeds max(`outlier_sigma`, k x median) (all at once; bridges
-//!    down-weighted instead of dropped), the rest at full weight;
+//!    d = sqrt(r^T Omega r) (every edge readmitted); then the re-seeding
+//!    ([`reseed`]: a node or group sitting in an outlier's basin moves to the
+//!    rigid proposal of one of its boundary edges when that lowers the robust
+//!    cost) and the rounds again; then rounds that drop edges whose d exceeds
+//!    max(`outlier_sigma`, k x median) (all at once; bridges down-weighted
+//!    instead of dropped), readmitting dropped edges that fit again or that no
+//!    kept edge opposes ([`reseed::unopposed`]), the rest at full weight;
 //! 4. per-node standard errors ([`super::covariance`]) times the a-posteriori
 //!    standard deviation of unit weight when it exceeds one (the edges disagree
 //!    more than their own sigmas say: [`variance_factor`]), and status.
@@ -31,6 +35,7 @@ use crate::graph::{EdgeSigma, PoseGraph};
 use crate::poses::rigid::{from_parts, rotation, translation};
 use nalgebra::{Matrix3, Matrix6, Vector3};
 use refine::refine;
+use reseed::{reseed, unopposed};
 
 /// What one edge knows, about the axes of i's frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -219,6 +224,34 @@ pub fn average_informed(
         (&mut rotations, &mut translations),
     );
     iterations += rounds;
+    // A node started in an outlier's basin stays there under the Cauchy rounds:
+    // move it to the proposal of one of its edges when that fits its edges better.
+    let seeded = reseed(
+        graph,
+        &omegas,
+        &usable,
+        &mahalanobis,
+        options.outlier_sigma,
+        (&mut rotations, &mut translations),
+    );
+    tracing::info!(
+        groups = seeded.moves,
+        nodes = seeded.nodes_moved,
+        sweeps = seeded.sweeps,
+        "groups re-seeded"
+    );
+    if seeded.moves > 0 {
+        let (rounds, residuals) = reweighted_rounds(
+            graph,
+            &omegas,
+            &usable,
+            options,
+            options.max_rounds,
+            (&mut rotations, &mut translations),
+        );
+        iterations += rounds;
+        mahalanobis = residuals;
+    }
     // How far the unreliable edges really are from the reliable ones' solution
     // sets their weight; then the IRLS rounds again at that weight.
     let unreliable = unreliable_weight(information, &mahalanobis, &usable, options);
@@ -256,6 +289,22 @@ pub fn average_informed(
             .filter(|&k| active[k] == 0.0 && usable[k] > 0.0 && !readmitted[k])
             .filter(|&k| mahalanobis[k].0.max(mahalanobis[k].1) < options.outlier_sigma)
             .collect();
+        let mut back = back;
+        let candidates: Vec<f64> = (0..graph.edges.len())
+            .map(|k| if readmitted[k] { 0.0 } else { usable[k] })
+            .collect();
+        let unopposed_edges = unopposed(
+            graph,
+            &omegas,
+            (&active, &candidates),
+            &mahalanobis,
+            options.outlier_sigma,
+            (&mut rotations, &mut translations),
+        );
+        if !unopposed_edges.is_empty() {
+            tracing::info!(edges = unopposed_edges.len(), "unopposed edges readmitted");
+        }
+        back.extend(unopposed_edges);
         let changed = !(dropped.is_empty() && downweighted.is_empty() && back.is_empty());
         if !changed && full_weight {
             break;
@@ -465,5 +514,6 @@ fn node_status(
 }
 
 mod refine;
+mod reseed;
 #[cfg(test)]
 mod tests;

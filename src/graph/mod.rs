@@ -5,15 +5,18 @@
 //!
 //! - [`model`]: [`Edge`], [`EdgeSigma`], [`PoseGraph`] and its validation.
 //! - [`components`]: union-find and connected components.
+//! - [`bridges`]: the edges whose removal splits a component.
 //! - [`tree`]: the greedy baseline, a Kruskal maximum-overlap spanning tree with
 //!   poses chained from a root.
 //! - [`weights`]: the edge weights (the paper's, or inverse variances).
 
+pub mod bridges;
 pub mod components;
 pub mod model;
 pub mod tree;
 mod weights;
 
+pub use bridges::bridges;
 pub use components::{Components, UnionFind};
 pub use model::{Edge, EdgeSigma, GraphError, PoseGraph};
 pub use tree::{chain_poses, max_spanning_forest, mst};
