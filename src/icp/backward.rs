@@ -93,7 +93,14 @@ impl Disagreement {
     pub fn variance(&self) -> Vector6<f64> {
         let s = &self.shift_m;
         let r = &self.rotation_rad;
-        Vector6::new(s.x * s.x, s.y * s.y, s.z * s.z, r.x * r.x, r.y * r.y, r.z * r.z)
+        Vector6::new(
+            s.x * s.x,
+            s.y * s.y,
+            s.z * s.z,
+            r.x * r.x,
+            r.y * r.y,
+            r.z * r.z,
+        )
     }
 }
 
@@ -203,7 +210,9 @@ mod tests {
     fn inflation_adds_variance_to_measured_axes_only() {
         let mut info = FitInformation {
             info_6x6: Matrix6::from_diagonal(&Vector6::new(100.0, 100.0, 0.0, 1e4, 1e4, 1e4)),
-            covariance_6x6: Matrix6::from_diagonal(&Vector6::new(0.01, 0.01, 0.0, 1e-4, 1e-4, 1e-4)),
+            covariance_6x6: Matrix6::from_diagonal(&Vector6::new(
+                0.01, 0.01, 0.0, 1e-4, 1e-4, 1e-4,
+            )),
             sigma: [
                 Some(0.1),
                 Some(0.1),

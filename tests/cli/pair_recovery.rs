@@ -107,13 +107,19 @@ fn check_pair(size: u32, seed: u32, dsmgen_args: &[&str], tol: Tolerance) {
         );
         // the backward check ran and, on a well-posed pair, agrees to centimetres
         let gap = &doc["result"]["backward"]["shift_m"];
-        let gap_m = (0..3).map(|k| gap[k].as_f64().unwrap().powi(2)).sum::<f64>().sqrt();
+        let gap_m = (0..3)
+            .map(|k| gap[k].as_f64().unwrap().powi(2))
+            .sum::<f64>()
+            .sqrt();
         assert!(gap_m < 0.05, "backward check {gap}");
         both.push(est);
     }
     // each direction returns the midpoint of both: the two answers are inverses
     let (d_m, a_deg) = error(&(both[0] * both[1]), &Matrix4::identity(), &corners);
-    assert!(d_m < 0.02 && a_deg < 0.002, "forward * inverse: {d_m} m, {a_deg} deg");
+    assert!(
+        d_m < 0.02 && a_deg < 0.002,
+        "forward * inverse: {d_m} m, {a_deg} deg"
+    );
     assert!(Path::new(&store).exists());
 }
 
