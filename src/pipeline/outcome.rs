@@ -74,13 +74,9 @@ impl PairInformation {
 }
 
 impl IcpFit {
-    /// Converged, still improving at the last iteration, or one of several
-    /// equally good fits: the graph can use it (only converged at full weight).
+    /// Converged, or still improving at the last iteration: the graph can use it.
     pub fn usable(&self) -> bool {
-        matches!(
-            self.status,
-            IcpStatus::Converged | IcpStatus::MaxIterations | IcpStatus::Ambiguous
-        )
+        matches!(self.status, IcpStatus::Converged | IcpStatus::MaxIterations)
     }
 
     /// The graph may trust this fit at full weight: it converged (its degenerate
