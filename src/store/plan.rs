@@ -28,10 +28,13 @@ pub(super) fn check_options(s: &StorageSettings) -> Result<(), IngestError> {
 /// (or is an empty directory, or holds only what another run creating the
 /// store right now has put there).
 pub(super) fn read_existing(store: &Path) -> Result<Option<RootAttrs>, IngestError> {
-    if store.join("zarr.json").exists() {
-        return catalog::read_root(store)
+    let read_root = || {
+        catalog::read_root(store)
             .map(Some)
-            .map_err(|e| IngestError::BadInput(e.to_string()));
+            .map_err(|e| IngestError::BadInput(e.to_string()))
+    };
+    if store.join("zarr.json").exists() {
+        return read_root();
     }
     match std::fs::read_dir(store) {
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
@@ -40,6 +43,9 @@ pub(super) fn read_existing(store: &Path) -> Result<Option<RootAttrs>, IngestErr
             store.display()
         ))),
         Ok(_) if files::only_leftovers(store) => Ok(None),
+        // Another run creating the store wrote its catalog between the two
+        // looks (concurrent ingests into a fresh store).
+        Ok(_) if store.join("zarr.json").exists() => read_root(),
         Ok(_) => Err(IngestError::BadInput(format!(
             "{}: exists, is not empty and is not a dsmstream store (no zarr.json)",
             store.display()
