@@ -7,6 +7,7 @@
 //! (applied to each coordinate): exact when every Omega is isotropic, and a fair
 //! approximation when they are not. Memory: about 180 bytes per edge.
 
+use super::cg::StepTolerance;
 use super::laplacian::Laplacian;
 use super::multilevel::Multilevel;
 use nalgebra::{Matrix3, Vector3};
@@ -80,86 +81,81 @@ impl BlockSystem {
         Multilevel::new(Laplacian::new(self.n, edges), true)
     }
 
-    /// Solves H x = rhs from zero, to relative residual `tol`.
+    /// Solves H x = rhs from `start` (zero if None) to `tolerance`.
     pub fn solve(
         &self,
         hierarchy: &Multilevel,
         rhs: &[Vector3<f64>],
-        tol: f64,
-        max_iter: usize,
+        start: Option<&[Vector3<f64>]>,
+        tolerance: StepTolerance,
     ) -> (Vec<Vector3<f64>>, BlockReport) {
         let n = self.n;
         let dot = |a: &[Vector3<f64>], b: &[Vector3<f64>]| {
             a.iter().zip(b).map(|(x, y)| x.dot(y)).sum::<f64>()
         };
         let mut work = hierarchy.workspace::<Vector3<f64>>();
-        let mut x = vec![Vector3::zeros(); n];
+        let mut x = start.map_or_else(|| vec![Vector3::zeros(); n], <[_]>::to_vec);
         let mut r = rhs.to_vec();
-        let b_norm = dot(&r, &r).sqrt();
+        let mut q = vec![Vector3::zeros(); n];
+        if start.is_some() {
+            self.apply(&x, &mut q);
+            r.iter_mut().zip(&q).for_each(|(r, q)| *r -= q);
+        }
+        let b_norm = dot(rhs, rhs).sqrt();
+        let report = |iterations, converged| BlockReport {
+            iterations,
+            converged,
+        };
         if b_norm == 0.0 {
-            return (
-                x,
-                BlockReport {
-                    iterations: 0,
-                    converged: true,
-                },
-            );
+            return (vec![Vector3::zeros(); n], report(0, true));
         }
         let mut z = vec![Vector3::zeros(); n];
         // The multigrid can break down on information spanning ten orders of
         // magnitude (a weak edge at 1 % of a weak fit beside strong ones); then
         // plain CG, slower but finite.
+        // (r^T r is no energy: the chi^2 rule then stays off.)
+        let mut tolerance = tolerance;
         let precondition = |r: &[Vector3<f64>], z: &mut [Vector3<f64>], work: &mut _| {
             hierarchy.apply(&|k| r[k], z, work);
-            if !z.iter().all(|v| v.iter().all(|c| c.is_finite())) {
+            let finite = z.iter().all(|v| v.iter().all(|c| c.is_finite()));
+            if !finite {
                 z.copy_from_slice(r);
             }
+            finite
         };
-        precondition(&r, &mut z, &mut work);
-        let mut p = z.clone();
-        let mut q = vec![Vector3::zeros(); n];
+        if !precondition(&r, &mut z, &mut work) {
+            tolerance.chi2_per_unknown = 0.0;
+        }
         let mut rz = dot(&r, &z);
-        for iteration in 1..=max_iter {
+        if tolerance.met(dot(&r, &r).sqrt(), b_norm, rz, 3 * n) {
+            return (x, report(0, true));
+        }
+        let mut p = z.clone();
+        for iteration in 1..=tolerance.max_iter {
             self.apply(&p, &mut q);
             let pq = dot(&p, &q);
             if !(pq > 0.0 && pq.is_finite()) {
-                return (
-                    x,
-                    BlockReport {
-                        iterations: iteration,
-                        converged: false,
-                    },
-                );
+                return (x, report(iteration, false));
             }
             let alpha = rz / pq;
             for k in 0..n {
                 x[k] += p[k] * alpha;
                 r[k] -= q[k] * alpha;
             }
-            if dot(&r, &r).sqrt() <= tol * b_norm {
-                return (
-                    x,
-                    BlockReport {
-                        iterations: iteration,
-                        converged: true,
-                    },
-                );
+            if !precondition(&r, &mut z, &mut work) {
+                tolerance.chi2_per_unknown = 0.0;
             }
-            precondition(&r, &mut z, &mut work);
             let rz_new = dot(&r, &z);
+            if tolerance.met(dot(&r, &r).sqrt(), b_norm, rz_new, 3 * n) {
+                return (x, report(iteration, true));
+            }
             let beta = rz_new / rz;
             rz = rz_new;
             for k in 0..n {
                 p[k] = z[k] + p[k] * beta;
             }
         }
-        (
-            x,
-            BlockReport {
-                iterations: max_iter,
-                converged: false,
-            },
-        )
+        (x, report(tolerance.max_iter, false))
     }
 }
 
@@ -200,7 +196,12 @@ mod tests {
             prior: 1e-6,
         };
         let rhs = system.gather(|_, e| -(e.omega * e.r0));
-        let (x, report) = system.solve(&system.preconditioner(), &rhs, 1e-13, 200);
+        let tolerance = StepTolerance {
+            relative: 1e-13,
+            chi2_per_unknown: 0.0,
+            max_iter: 200,
+        };
+        let (x, report) = system.solve(&system.preconditioner(), &rhs, None, tolerance);
         assert!(report.converged);
         let mut dense = nalgebra::DMatrix::<f64>::zeros(9, 9);
         for c in 0..9 {

@@ -98,6 +98,46 @@ pub(crate) struct CgTolerance {
     pub max_iter: usize,
 }
 
+/// Stopping rule of the Gauss-Newton and covariance solves on normal equations in
+/// information units (H = sum J^T Omega J): stop when |r| <= `relative` x |b|, or
+/// when r^T M^-1 r (M the preconditioner; about r^T H^-1 r, the chi^2 the rest
+/// of the solve could still gain) is at most `chi2_per_unknown` x the number of
+/// unknowns: then the solution is off by about sqrt(`chi2_per_unknown`) of its
+/// standard error per unknown, however large or small the right-hand side.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct StepTolerance {
+    pub relative: f64,
+    pub chi2_per_unknown: f64,
+    pub max_iter: usize,
+}
+
+impl StepTolerance {
+    /// Gauss-Newton steps: 10^-6 of a standard error per unknown.
+    pub fn step(max_iter: usize) -> Self {
+        StepTolerance {
+            relative: 1e-10,
+            chi2_per_unknown: 1e-12,
+            max_iter,
+        }
+    }
+
+    /// Covariance samples (about one standard error per unknown each): 10^-3
+    /// of it, far below the sampling error.
+    pub fn sample(max_iter: usize) -> Self {
+        StepTolerance {
+            relative: 1e-8,
+            chi2_per_unknown: 1e-6,
+            max_iter,
+        }
+    }
+
+    /// Met by the residual norm `r_norm` (of a right-hand side of norm `b_norm`)
+    /// and the preconditioned residual energy `rz` over `unknowns` unknowns.
+    pub fn met(&self, r_norm: f64, b_norm: f64, rz: f64, unknowns: usize) -> bool {
+        r_norm <= self.relative * b_norm || rz.abs() <= self.chi2_per_unknown * unknowns as f64
+    }
+}
+
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct CgReport {
     pub iterations: usize,

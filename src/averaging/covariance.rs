@@ -9,6 +9,7 @@
 //! A node in no active edge gets infinite sigmas.
 
 use super::block::{BlockEdge, BlockSystem};
+use super::cg::StepTolerance;
 use crate::graph::PoseGraph;
 use crate::rng::SplitMix64;
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Vector3};
@@ -237,7 +238,7 @@ fn sampled(
             .collect();
         let mut rhs = system.gather(|k, _| draws[k]);
         project_out(&mut rhs, null);
-        let (mut x, _) = system.solve(&hierarchy, &rhs, 1e-8, 20_000);
+        let (mut x, _) = system.solve(&hierarchy, &rhs, None, StepTolerance::sample(20_000));
         project_out(&mut x, null);
         sum.iter_mut()
             .zip(&x)

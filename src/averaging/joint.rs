@@ -24,9 +24,12 @@
 
 use nalgebra::{Matrix3, Matrix6, Vector3, Vector6};
 
+mod banded;
 mod covariance;
+use banded::{reverse_cuthill_mckee, Banded};
 pub(crate) use covariance::joint_node_sigmas;
 
+use super::cg::StepTolerance;
 use super::robust::rotation_vector;
 use crate::geo::rigid::rotation_from_axis_angle;
 use crate::graph::PoseGraph;
@@ -53,21 +56,30 @@ struct JointSystem {
 
 /// The coarse space of the preconditioner: nodes grouped into aggregates of
 /// neighbours (consecutive in the Morton order of their pivots), each moving
-/// rigidly about its centre; the Galerkin operator P^T H P is small and
-/// factored densely. It carries the smooth, long-range modes (a block of tiles
-/// turning with its shifts) that the block-Jacobi part cannot.
+/// rigidly about its centre; the Galerkin operator P^T H P is factored as a
+/// banded matrix ([`banded`]). It carries the smooth, long-range modes (a block
+/// of tiles turning with its shifts) that the block-Jacobi part cannot.
 struct Coarse {
     /// Aggregate of each node.
     of: Vec<usize>,
+    /// Each aggregate's place in the banded coarse matrix.
+    rank: Vec<usize>,
     centres: Vec<Vector3<f64>>,
-    factor: nalgebra::Cholesky<f64, nalgebra::Dyn>,
+    factor: Banded,
 }
 
-/// Aggregates at most this many: the dense coarse factorisation costs
-/// (6 x this)^3 / 3 flops.
-const MAX_AGGREGATES: usize = 400;
-/// ... and nodes per aggregate at least this many.
+/// Nodes per aggregate at least this many ...
 const MIN_AGGREGATE_NODES: usize = 8;
+/// ... and aggregates at most the larger of this and [`AGGREGATES_PER_SQRT_NODE`]
+/// x sqrt(nodes): the banded factorisation costs about aggregates^2 x 108 flops,
+/// and each aggregate of a large graph holds sqrt(nodes) / 4 tiles.
+const MAX_AGGREGATES: usize = 400;
+const AGGREGATES_PER_SQRT_NODE: f64 = 4.0;
+
+fn aggregate_count(n: usize) -> usize {
+    let cap = MAX_AGGREGATES.max((AGGREGATES_PER_SQRT_NODE * (n as f64).sqrt()) as usize);
+    (n / MIN_AGGREGATE_NODES).min(cap)
+}
 
 /// What the Gauss-Newton steps did.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -96,7 +108,7 @@ pub(crate) fn joint_refine(
         let pivots = pivots(graph, active, rotations, translations);
         let system = linearise(graph, omegas, active, rotations, translations, &pivots);
         let rhs = system.gradient();
-        let (delta, iterations, converged) = system.solve(&rhs, 1e-10, max_iter);
+        let (delta, iterations, converged) = system.solve(&rhs, StepTolerance::step(max_iter));
         report.cg_iterations += iterations;
         tracing::debug!(
             nodes = graph.n,
@@ -298,7 +310,7 @@ impl JointSystem {
 
     /// The coarse space, or None for tiny graphs or a failed factorisation.
     fn coarse(&self) -> Option<Coarse> {
-        let aggregates = (self.n / MIN_AGGREGATE_NODES).min(MAX_AGGREGATES);
+        let aggregates = aggregate_count(self.n);
         if aggregates < 2 {
             return None;
         }
@@ -325,13 +337,27 @@ impl JointSystem {
             .into_iter()
             .map(|(s, c)| s / c.max(1) as f64)
             .collect();
-        let p = |k: usize| prolongation(&self.pivots[k], &centres[of[k]]);
-        let m = 6 * aggregates;
-        let mut a = nalgebra::DMatrix::<f64>::zeros(m, m);
+        let links: Vec<(usize, usize)> = self.edges.iter().map(|e| (of[e.i], of[e.j])).collect();
+        let rank = reverse_cuthill_mckee(aggregates, &links);
+        let band = links
+            .iter()
+            .map(|&(a, b)| rank[a].abs_diff(rank[b]))
+            .max()
+            .unwrap_or(0);
+        let mut a = Banded::zeros(6 * aggregates, 6 * band + 5);
+        // The lower triangle of each block: (r, c) and (c, r) are both added
+        // for r != c, so each off-diagonal entry arrives once.
         let mut add = |r: usize, c: usize, block: &Matrix6<f64>| {
-            let mut view = a.view_mut((6 * r, 6 * c), (6, 6));
-            view += block;
+            let (r, c) = (6 * rank[r], 6 * rank[c]);
+            for p in 0..6 {
+                for q in 0..6 {
+                    if r + p >= c + q {
+                        a.add(r + p, c + q, block[(p, q)]);
+                    }
+                }
+            }
         };
+        let p = |k: usize| prolongation(&self.pivots[k], &centres[of[k]]);
         let prior = Matrix6::from_diagonal(&self.prior_of());
         for (k, &a) in of.iter().enumerate() {
             add(a, a, &(p(k).transpose() * prior * p(k)));
@@ -347,40 +373,21 @@ impl JointSystem {
         let factor = a.cholesky()?;
         Some(Coarse {
             of,
+            rank,
             centres,
             factor,
         })
     }
 
-    /// Solves H x = rhs from zero to relative residual `tol`: (x, iterations, converged).
+    /// Solves H x = rhs from zero to `tolerance`: (x, iterations, converged).
     fn solve(
         &self,
         rhs: &[Vector6<f64>],
-        tol: f64,
-        max_iter: usize,
+        tolerance: StepTolerance,
     ) -> (Vec<Vector6<f64>>, usize, bool) {
         let n = self.n;
         let dot = |a: &[Vector6<f64>], b: &[Vector6<f64>]| {
             a.iter().zip(b).map(|(x, y)| x.dot(y)).sum::<f64>()
-        };
-        let inverse = self.block_jacobi();
-        let coarse = self.coarse();
-        // Additive two-level: block Jacobi plus the coarse correction P A_c^-1 P^T r.
-        let precondition = |r: &[Vector6<f64>], z: &mut [Vector6<f64>]| {
-            for ((z, r), m) in z.iter_mut().zip(r).zip(&inverse) {
-                *z = m * r;
-            }
-            if let Some(c) = &coarse {
-                let mut rc = nalgebra::DVector::<f64>::zeros(6 * c.centres.len());
-                for ((pivot, &a), r) in self.pivots.iter().zip(&c.of).zip(r) {
-                    let mut view = rc.rows_mut(6 * a, 6);
-                    view += prolongation(pivot, &c.centres[a]).tr_mul(r);
-                }
-                let xc = c.factor.solve(&rc);
-                for ((pivot, &a), z) in self.pivots.iter().zip(&c.of).zip(z.iter_mut()) {
-                    *z += prolongation(pivot, &c.centres[a]) * xc.fixed_rows::<6>(6 * a);
-                }
-            }
         };
         let mut x = vec![Vector6::zeros(); n];
         let mut r = rhs.to_vec();
@@ -388,12 +395,38 @@ impl JointSystem {
         if b_norm == 0.0 {
             return (x, 0, true);
         }
+        let inverse = self.block_jacobi();
+        let coarse = self.coarse();
+        // Additive two-level: block Jacobi plus the coarse correction P A_c^-1 P^T r.
+        let mut rc = vec![0.0; coarse.as_ref().map_or(0, |c| 6 * c.centres.len())];
+        let mut precondition = |r: &[Vector6<f64>], z: &mut [Vector6<f64>]| {
+            for ((z, r), m) in z.iter_mut().zip(r).zip(&inverse) {
+                *z = m * r;
+            }
+            if let Some(c) = &coarse {
+                rc.iter_mut().for_each(|v| *v = 0.0);
+                for ((pivot, &a), r) in self.pivots.iter().zip(&c.of).zip(r) {
+                    let at = 6 * c.rank[a];
+                    let v = prolongation(pivot, &c.centres[a]).tr_mul(r);
+                    rc[at..at + 6].iter_mut().zip(&v).for_each(|(s, v)| *s += v);
+                }
+                c.factor.solve(&mut rc);
+                for ((pivot, &a), z) in self.pivots.iter().zip(&c.of).zip(z.iter_mut()) {
+                    let at = 6 * c.rank[a];
+                    *z += prolongation(pivot, &c.centres[a])
+                        * Vector6::from_column_slice(&rc[at..at + 6]);
+                }
+            }
+        };
         let mut z = vec![Vector6::zeros(); n];
         precondition(&r, &mut z);
+        let mut rz = dot(&r, &z);
+        if tolerance.met(b_norm, b_norm, rz, 6 * n) {
+            return (x, 0, true);
+        }
         let mut p = z.clone();
         let mut q = vec![Vector6::zeros(); n];
-        let mut rz = dot(&r, &z);
-        for iteration in 1..=max_iter {
+        for iteration in 1..=tolerance.max_iter {
             self.apply(&p, &mut q);
             let pq = dot(&p, &q);
             if !(pq > 0.0 && pq.is_finite()) {
@@ -404,17 +437,17 @@ impl JointSystem {
                 x[k] += p[k] * alpha;
                 r[k] -= q[k] * alpha;
             }
-            if dot(&r, &r).sqrt() <= tol * b_norm {
-                return (x, iteration, true);
-            }
             precondition(&r, &mut z);
             let rz_new = dot(&r, &z);
+            if tolerance.met(dot(&r, &r).sqrt(), b_norm, rz_new, 6 * n) {
+                return (x, iteration, true);
+            }
             let beta = rz_new / rz;
             rz = rz_new;
             for k in 0..n {
                 p[k] = z[k] + p[k] * beta;
             }
         }
-        (x, max_iter, false)
+        (x, tolerance.max_iter, false)
     }
 }

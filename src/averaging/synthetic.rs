@@ -17,6 +17,8 @@ use nalgebra::{Matrix4, Vector3};
 
 pub use crate::rng::SplitMix64;
 
+pub mod informed;
+
 /// Three independent normal deviates of standard deviation `sigma`.
 pub fn normal3(rng: &mut SplitMix64, sigma: f64) -> Vector3<f64> {
     Vector3::new(rng.normal(), rng.normal(), rng.normal()) * sigma

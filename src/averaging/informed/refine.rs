@@ -6,6 +6,7 @@ use nalgebra::{Matrix3, Matrix6, Vector3};
 
 use super::InformedOptions;
 use crate::averaging::block::{BlockEdge, BlockSystem};
+use crate::averaging::cg::StepTolerance;
 use crate::averaging::joint::joint_refine;
 use crate::averaging::robust::rotation_vector;
 use crate::graph::PoseGraph;
@@ -63,7 +64,8 @@ pub(super) fn refine(
     translations: &mut [Vector3<f64>],
 ) -> usize {
     let mut iterations = 0;
-    let (tol, max_iter) = (1e-10, options.base.cg_max_iter);
+    let max_iter = options.base.cg_max_iter;
+    let tolerance = StepTolerance::step(max_iter);
     for _ in 0..2 {
         let edges = block_edges(graph, omegas, active, rotations, true);
         let system = BlockSystem {
@@ -72,7 +74,7 @@ pub(super) fn refine(
             edges,
         };
         let rhs = system.gather(|_, e| -(e.omega * e.r0));
-        let (delta, report) = system.solve(&system.preconditioner(), &rhs, tol, max_iter);
+        let (delta, report) = system.solve(&system.preconditioner(), &rhs, None, tolerance);
         iterations += report.iterations;
         for (r, d) in rotations.iter_mut().zip(&delta) {
             *r *= rotation_from_axis_angle(d);
@@ -85,7 +87,9 @@ pub(super) fn refine(
         edges,
     };
     let rhs = system.gather(|_, e| -(e.omega * e.r0));
-    let (t, report) = system.solve(&system.preconditioner(), &rhs, tol, max_iter);
+    // From the current translations: late rounds move them by a fraction of a sigma.
+    let start = Some(&*translations);
+    let (t, report) = system.solve(&system.preconditioner(), &rhs, start, tolerance);
     iterations += report.iterations;
     translations.copy_from_slice(&t);
     if options.joint_steps > 0 {

@@ -11,6 +11,7 @@
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Vector3, Vector6};
 
 use super::{linearise, pivots, JointSystem};
+use crate::averaging::cg::StepTolerance;
 use crate::averaging::covariance::{gauge_free_diagonal, CovarianceMethod, NodeSigma};
 use crate::graph::PoseGraph;
 use crate::rng::SplitMix64;
@@ -157,7 +158,7 @@ fn sampled(
             rhs[e.j] += e.a_j.tr_mul(&w);
         }
         project_out(&mut rhs, null);
-        let (mut x, _, _) = system.solve(&rhs, 1e-8, 20_000);
+        let (mut x, _, _) = system.solve(&rhs, StepTolerance::sample(20_000));
         project_out(&mut x, null);
         sum.iter_mut()
             .zip(&x)
