@@ -112,11 +112,11 @@ pub(crate) struct StepTolerance {
 }
 
 impl StepTolerance {
-    /// Gauss-Newton steps: 10^-6 of a standard error per unknown.
+    /// Gauss-Newton steps: 10^-4 of a standard error per unknown.
     pub fn step(max_iter: usize) -> Self {
         StepTolerance {
             relative: 1e-10,
-            chi2_per_unknown: 1e-12,
+            chi2_per_unknown: 1e-8,
             max_iter,
         }
     }

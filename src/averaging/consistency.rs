@@ -120,9 +120,11 @@ pub(super) fn select(
     });
     outliers.sort_by(|&a, &b| bad(b).total_cmp(&bad(a)).then(a.cmp(&b)));
     let chosen = outliers;
+    let mut is_chosen = vec![false; graph.edges.len()];
+    chosen.iter().for_each(|&k| is_chosen[k] = true);
     let mut sets = UnionFind::new(graph.n);
     for &k in &live {
-        if !chosen.contains(&k) {
+        if !is_chosen[k] {
             sets.union(graph.edges[k].i, graph.edges[k].j);
         }
     }

@@ -25,7 +25,7 @@
 //! so i's and j's axes agree to first order.
 
 use super::consistency::{
-    active_components, mahalanobis_residuals, select, unreliable_weight, variance_factor,
+    active_components, mahalanobis_residuals, unreliable_weight, variance_factor,
 };
 use super::covariance::{node_sigmas, CovarianceMethod, NodeSigma};
 use super::joint::joint_node_sigmas;
@@ -33,9 +33,13 @@ use super::{average, AveragingError, AveragingOptions, AveragingResult};
 use crate::fit::FitInformation;
 use crate::graph::{EdgeSigma, PoseGraph};
 use crate::poses::rigid::{from_parts, rotation, translation};
+use decide::decide;
 use nalgebra::{Matrix3, Matrix6, Vector3};
 use refine::refine;
-use reseed::{reseed, unopposed};
+use reseed::reseed;
+
+/// Poses as rotations and translations, M = [R t].
+type Poses<'a> = (&'a mut [Matrix3<f64>], &'a mut [Vector3<f64>]);
 
 /// What one edge knows, about the axes of i's frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -131,7 +135,14 @@ pub struct InformedOptions {
 impl Default for InformedOptions {
     fn default() -> Self {
         InformedOptions {
-            base: AveragingOptions::default(),
+            // The scalar averaging only starts the refinement: rotations to 1e-7
+            // rad (a thousandth of a pair's rotation sigma) are plenty, and each
+            // decade more costs a subspace step per round on large grids (their
+            // spectral gap is small).
+            base: AveragingOptions {
+                rotation_tol_rad: 1e-7,
+                ..AveragingOptions::default()
+            },
             unreliable_factor: 0.01,
             outlier_sigma: 5.0,
             outlier_k: 5.0,
@@ -213,17 +224,15 @@ pub fn average_informed(
     let mut rotations: Vec<Matrix3<f64>> = result.poses.iter().map(rotation).collect();
     let mut translations: Vec<Vector3<f64>> = result.poses.iter().map(translation).collect();
     let mut iterations = 0;
+    let mut irls = |omegas: &[Matrix6<f64>], count: usize, poses: Poses| {
+        let (rounds, residuals) = reweighted_rounds(graph, omegas, &usable, options, count, poses);
+        iterations += rounds;
+        residuals
+    };
     // Iteratively reweighted (Cauchy, scale `outlier_sigma`) from the scalar
     // solution, every edge readmitted: the scalar rounds may have dropped good ones.
-    let (rounds, mut mahalanobis) = reweighted_rounds(
-        graph,
-        &omegas,
-        &usable,
-        options,
-        options.max_rounds,
-        (&mut rotations, &mut translations),
-    );
-    iterations += rounds;
+    let poses = (&mut rotations[..], &mut translations[..]);
+    let mut mahalanobis = irls(&omegas, options.max_rounds, poses);
     // A node started in an outlier's basin stays there under the Cauchy rounds:
     // move it to the proposal of one of its edges when that fits its edges better.
     let seeded = reseed(
@@ -241,16 +250,8 @@ pub fn average_informed(
         "groups re-seeded"
     );
     if seeded.moves > 0 {
-        let (rounds, residuals) = reweighted_rounds(
-            graph,
-            &omegas,
-            &usable,
-            options,
-            options.max_rounds,
-            (&mut rotations, &mut translations),
-        );
-        iterations += rounds;
-        mahalanobis = residuals;
+        let poses = (&mut rotations[..], &mut translations[..]);
+        mahalanobis = irls(&omegas, options.max_rounds, poses);
     }
     // How far the unreliable edges really are from the reliable ones' solution
     // sets their weight; then the IRLS rounds again at that weight.
@@ -262,85 +263,18 @@ pub fn average_informed(
             ..*options
         };
         omegas = effective_information(information, &at);
-        let (rounds, residuals) = reweighted_rounds(
-            graph,
-            &omegas,
-            &usable,
-            options,
-            options.max_rounds / 2,
-            (&mut rotations, &mut translations),
-        );
-        iterations += rounds;
-        mahalanobis = residuals;
+        let poses = (&mut rotations[..], &mut translations[..]);
+        mahalanobis = irls(&omegas, options.max_rounds / 2, poses);
     }
-    // Then hard decisions, a few edges per round (see `select`), the undecided
-    // edges still Cauchy-weighted so that outliers not yet dropped do not bend
-    // the poses; an edge dropped while a worse one bent them comes back (once)
-    // when it fits again. When nothing changes, the kept edges are solved at
-    // full weight and judged once more.
-    let mut active = usable.clone();
-    let mut readmitted = vec![false; graph.edges.len()];
-    let mut full_weight = false;
-    result.dropped_edges.clear();
-    result.downweighted_edges.clear();
-    for _ in 0..4 * options.max_rounds {
-        let (dropped, downweighted) = select(graph, &active, &mahalanobis, options);
-        let back: Vec<usize> = (0..graph.edges.len())
-            .filter(|&k| active[k] == 0.0 && usable[k] > 0.0 && !readmitted[k])
-            .filter(|&k| mahalanobis[k].0.max(mahalanobis[k].1) < options.outlier_sigma)
-            .collect();
-        let mut back = back;
-        let candidates: Vec<f64> = (0..graph.edges.len())
-            .map(|k| if readmitted[k] { 0.0 } else { usable[k] })
-            .collect();
-        let unopposed_edges = unopposed(
-            graph,
-            &omegas,
-            (&active, &candidates),
-            &mahalanobis,
-            options.outlier_sigma,
-            (&mut rotations, &mut translations),
-        );
-        if !unopposed_edges.is_empty() {
-            tracing::info!(edges = unopposed_edges.len(), "unopposed edges readmitted");
-        }
-        back.extend(unopposed_edges);
-        let changed = !(dropped.is_empty() && downweighted.is_empty() && back.is_empty());
-        if !changed && full_weight {
-            break;
-        }
-        for &k in &back {
-            active[k] = usable[k];
-            readmitted[k] = true;
-        }
-        for &k in &dropped {
-            active[k] = 0.0;
-        }
-        for &(k, f) in &downweighted {
-            active[k] *= f;
-            result.downweighted_edges.push(k);
-        }
-        full_weight = !changed;
-        let weights: Vec<f64> = if full_weight {
-            active.clone()
-        } else {
-            cauchy_weights(&mahalanobis, &active, options.outlier_sigma)
-        };
-        iterations += refine(
-            graph,
-            &omegas,
-            &weights,
-            options,
-            &mut rotations,
-            &mut translations,
-        );
-        mahalanobis = mahalanobis_residuals(graph, &omegas, &rotations, &translations);
-    }
+    // Then the hard decisions ([`decide`]).
+    let poses = (&mut rotations[..], &mut translations[..]);
+    let decided = decide(graph, &omegas, &usable, options, mahalanobis, poses);
+    iterations += decided.iterations;
+    let (active, mahalanobis) = (decided.active, decided.mahalanobis);
     result.dropped_edges = (0..graph.edges.len())
         .filter(|&k| active[k] == 0.0 && usable[k] > 0.0)
         .collect();
-    result.dropped_edges.sort_unstable();
-    result.dropped_edges.dedup();
+    result.downweighted_edges = decided.downweighted;
     result.downweighted_edges.sort_unstable();
     result.downweighted_edges.dedup();
     let mut poses: Vec<_> = rotations
@@ -403,7 +337,7 @@ fn reweighted_rounds(
     usable: &[f64],
     options: &InformedOptions,
     rounds: usize,
-    (rotations, translations): (&mut [Matrix3<f64>], &mut [Vector3<f64>]),
+    (rotations, translations): Poses,
 ) -> (usize, Vec<(f64, f64)>) {
     let mut iterations = 0;
     let mut mahalanobis = mahalanobis_residuals(graph, omegas, rotations, translations);
@@ -513,6 +447,7 @@ fn node_status(
         .collect()
 }
 
+mod decide;
 mod refine;
 mod reseed;
 #[cfg(test)]

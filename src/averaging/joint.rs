@@ -90,7 +90,7 @@ pub(crate) struct JointReport {
 }
 
 /// `steps` Gauss-Newton steps on all poses at once, edges weighted by
-/// `active` (0: left out). Poses change in place.
+/// `active` (0: left out), each solved to `tolerance`. Poses change in place.
 pub(crate) fn joint_refine(
     graph: &PoseGraph,
     omegas: &[Matrix6<f64>],
@@ -98,7 +98,7 @@ pub(crate) fn joint_refine(
     rotations: &mut [Matrix3<f64>],
     translations: &mut [Vector3<f64>],
     steps: usize,
-    max_iter: usize,
+    tolerance: StepTolerance,
 ) -> JointReport {
     let mut report = JointReport {
         cg_iterations: 0,
@@ -108,7 +108,7 @@ pub(crate) fn joint_refine(
         let pivots = pivots(graph, active, rotations, translations);
         let system = linearise(graph, omegas, active, rotations, translations, &pivots);
         let rhs = system.gradient();
-        let (delta, iterations, converged) = system.solve(&rhs, StepTolerance::step(max_iter));
+        let (delta, iterations, converged) = system.solve(&rhs, tolerance);
         report.cg_iterations += iterations;
         tracing::debug!(
             nodes = graph.n,

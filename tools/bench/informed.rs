@@ -3,8 +3,8 @@
 //! `src/align/solve.rs` calls it) on synthetic tile grids of `width` x `width`
 //! DSMs with 8-neighbour overlaps, anisotropic 6x6 covariances, 10 % flat
 //! overlaps, 3 % unreliable pairs and 3 % gross outliers
-//! ([`informed_grid`]). Prints one table row per width: seconds, refinement CG
-//! iterations, dropped edges (and how many of them are true outliers), pose
+//! ([`informed_grid`]). Prints one table row per width: seconds (and those of
+//! the scalar averaging that starts the solve), CG iterations, dropped edges (and how many of them are true outliers), pose
 //! errors against the truth (gauge free) and the largest node sigma.
 //!
 //! Usage: bench_informed [--widths 32,64,100] [--seed 7]
@@ -59,9 +59,9 @@ fn main() {
         config.seed
     );
     println!(
-        "| nodes | edges | build s | solve s | refine CG | dropped | of which outliers | outliers kept at full weight | rot err deg (rms) | trans err m (rms) | max shift sigma m |"
+        "| nodes | edges | build s | solve s | of which scalar s | scalar rot steps / CG, trans CG | refine CG | dropped | of which outliers | outliers kept at full weight | rot err deg (rms) | trans err m (rms) | max shift sigma m |"
     );
-    println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    println!("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for &width in &config.widths {
         let built = Instant::now();
         let grid = informed_grid(&InformedGridSpec::new(width, config.seed));
@@ -90,10 +90,7 @@ fn main() {
                     && averaging.downweighted_edges.binary_search(k).is_err()
             })
             .count();
-        let components = Components::new(
-            grid.graph.n,
-            grid.graph.edges.iter().map(|e| (e.i, e.j)),
-        );
+        let components = Components::new(grid.graph.n, grid.graph.edges.iter().map(|e| (e.i, e.j)));
         let errors = pose_errors(&averaging.poses, &grid.truth, &components);
         let max_sigma = result
             .sigma
@@ -102,11 +99,15 @@ fn main() {
             .filter(|v| v.is_finite())
             .fold(0.0, f64::max);
         println!(
-            "| {} | {} | {:.2} | {:.2} | {} | {} | {} / {} | {} | {:.5} | {:.4} | {:.3} |",
+            "| {} | {} | {:.2} | {:.2} | {:.2} | {} / {}, {} | {} | {} | {} / {} | {} | {:.5} | {:.4} | {:.3} |",
             grid.graph.n,
             grid.graph.edges.len(),
             build_s,
             solve_s,
+            averaging.timings.total_s,
+            averaging.rotation_iterations,
+            averaging.rotation_cg_iterations,
+            averaging.cg_iterations,
             result.refine_iterations,
             averaging.dropped_edges.len(),
             caught,

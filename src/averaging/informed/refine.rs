@@ -100,7 +100,7 @@ pub(super) fn refine(
             rotations,
             translations,
             options.joint_steps,
-            max_iter,
+            tolerance,
         );
         iterations += joint.cg_iterations;
     }

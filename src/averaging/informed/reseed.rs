@@ -300,6 +300,42 @@ mod tests {
         from_parts(&r, &Vector3::from(t))
     }
 
+    /// The rotations and translations of `poses`.
+    fn parts(poses: &[Matrix4<f64>]) -> (Vec<Matrix3<f64>>, Vec<Vector3<f64>>) {
+        let rotations = poses
+            .iter()
+            .map(|m| m.fixed_view::<3, 3>(0, 0).into_owned())
+            .collect();
+        let translations = poses
+            .iter()
+            .map(|m| m.fixed_view::<3, 1>(0, 3).into_owned())
+            .collect();
+        (rotations, translations)
+    }
+
+    /// Re-seeds from the poses given (scale 5), residuals taken there.
+    fn reseed_from(
+        graph: &PoseGraph,
+        omegas: &[Matrix6<f64>],
+        weights: &[f64],
+        (rotations, translations): Poses,
+    ) -> Reseeding {
+        let residuals = crate::averaging::consistency::mahalanobis_residuals(
+            graph,
+            omegas,
+            rotations,
+            translations,
+        );
+        reseed(
+            graph,
+            omegas,
+            weights,
+            &residuals,
+            5.0,
+            (rotations, translations),
+        )
+    }
+
     /// A star: node 0 joined to four neighbours that a ring of exact edges
     /// holds; two of node 0's edges are exact, two are gross outliers, and node 0
     /// starts on one outlier's proposal (so that outlier is its only consistent
@@ -335,29 +371,14 @@ mod tests {
         let omega = Matrix6::from_diagonal(&nalgebra::Vector6::new(1e8, 1e8, 1e8, 1e3, 1e3, 1e3));
         let omegas = vec![omega; 8];
         let weights = vec![1.0; 8];
-        let mut rotations: Vec<Matrix3<f64>> = truth
-            .iter()
-            .map(|m| m.fixed_view::<3, 3>(0, 0).into_owned())
-            .collect();
-        let mut translations: Vec<Vector3<f64>> = truth
-            .iter()
-            .map(|m| m.fixed_view::<3, 1>(0, 3).into_owned())
-            .collect();
+        let (mut rotations, mut translations) = parts(&truth);
         let (r, t) = proposal(&graph.edges[2], 0, (&rotations, &translations));
         rotations[0] = r;
         translations[0] = t;
-        let residuals = crate::averaging::consistency::mahalanobis_residuals(
-            &graph,
-            &omegas,
-            &rotations,
-            &translations,
-        );
-        let done = reseed(
+        let done = reseed_from(
             &graph,
             &omegas,
             &weights,
-            &residuals,
-            5.0,
             (&mut rotations, &mut translations),
         );
         assert_eq!(done.moves, 1);
@@ -406,14 +427,7 @@ mod tests {
         let graph = PoseGraph { n: 8, edges };
         let omegas = vec![Matrix6::identity() * 1e4; graph.edges.len()];
         let weights = vec![1.0; graph.edges.len()];
-        let mut rotations: Vec<Matrix3<f64>> = truth
-            .iter()
-            .map(|m| m.fixed_view::<3, 3>(0, 0).into_owned())
-            .collect();
-        let mut translations: Vec<Vector3<f64>> = truth
-            .iter()
-            .map(|m| m.fixed_view::<3, 1>(0, 3).into_owned())
-            .collect();
+        let (mut rotations, mut translations) = parts(&truth);
         let (r5, t5) = proposal(&graph.edges[11], 5, (&rotations, &translations));
         let r_g = r5 * rotations[5].transpose();
         let t_g = t5 - r_g * translations[5];
@@ -421,18 +435,10 @@ mod tests {
             translations[m] = r_g * translations[m] + t_g;
             rotations[m] = r_g * rotations[m];
         }
-        let residuals = crate::averaging::consistency::mahalanobis_residuals(
-            &graph,
-            &omegas,
-            &rotations,
-            &translations,
-        );
-        let done = reseed(
+        let done = reseed_from(
             &graph,
             &omegas,
             &weights,
-            &residuals,
-            5.0,
             (&mut rotations, &mut translations),
         );
         assert_eq!((done.moves, done.nodes_moved), (1, 3));
@@ -457,14 +463,7 @@ mod tests {
         let poses = [pose(0.2, [3.0, 1.0, 0.0]), m1, m1 * edges[1].m_ij()];
         let graph = PoseGraph { n: 3, edges };
         let omegas = vec![Matrix6::identity() * 1e4; 2];
-        let mut rotations: Vec<Matrix3<f64>> = poses
-            .iter()
-            .map(|m| m.fixed_view::<3, 3>(0, 0).into_owned())
-            .collect();
-        let mut translations: Vec<Vector3<f64>> = poses
-            .iter()
-            .map(|m| m.fixed_view::<3, 1>(0, 3).into_owned())
-            .collect();
+        let (mut rotations, mut translations) = parts(&poses);
         let before = translations.clone();
         let residuals = crate::averaging::consistency::mahalanobis_residuals(
             &graph,

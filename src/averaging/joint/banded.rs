@@ -35,7 +35,11 @@ pub(super) fn reverse_cuthill_mckee(n: usize, pairs: &[(usize, usize)]) -> Vec<u
         let mut queue = VecDeque::from([root]);
         while let Some(v) = queue.pop_front() {
             order.push(v);
-            let mut next: Vec<usize> = neighbours[v].iter().copied().filter(|&w| !seen[w]).collect();
+            let mut next: Vec<usize> = neighbours[v]
+                .iter()
+                .copied()
+                .filter(|&w| !seen[w])
+                .collect();
             next.sort_by_key(|&w| (degree(w), w));
             for w in next {
                 seen[w] = true;
@@ -124,7 +128,10 @@ impl Banded {
             let v = b[i];
             let first = i.saturating_sub(self.band);
             let row = self.at(i, first);
-            for (x, a) in b[first..i].iter_mut().zip(&self.rows[row..row + (i - first)]) {
+            for (x, a) in b[first..i]
+                .iter_mut()
+                .zip(&self.rows[row..row + (i - first)])
+            {
                 *x -= a * v;
             }
         }
@@ -161,7 +168,12 @@ mod tests {
         factor.solve(&mut x);
         let exact = dense.cholesky().unwrap().solve(&b);
         for i in 0..n {
-            assert!((x[i] - exact[i]).abs() < 1e-12, "{i}: {} vs {}", x[i], exact[i]);
+            assert!(
+                (x[i] - exact[i]).abs() < 1e-12,
+                "{i}: {} vs {}",
+                x[i],
+                exact[i]
+            );
         }
     }
 
