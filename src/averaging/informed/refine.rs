@@ -5,7 +5,7 @@
 use nalgebra::{Matrix3, Matrix6, Vector3};
 
 use super::InformedOptions;
-use crate::averaging::block::{BlockEdge, BlockSystem};
+use crate::averaging::block::{BlockEdge, BlockReport, BlockSystem};
 use crate::averaging::cg::StepTolerance;
 use crate::averaging::joint::joint_refine;
 use crate::averaging::robust::rotation_vector;
@@ -68,28 +68,15 @@ pub(super) fn refine(
     let tolerance = StepTolerance::step(max_iter);
     for _ in 0..2 {
         let edges = block_edges(graph, omegas, active, rotations, true);
-        let system = BlockSystem {
-            n: graph.n,
-            prior: tiny_prior(&edges),
-            edges,
-        };
-        let rhs = system.gather(|_, e| -(e.omega * e.r0));
-        let (delta, report) = system.solve(&system.preconditioner(), &rhs, None, tolerance);
+        let (delta, report) = solve_blocks(graph.n, edges, None, tolerance);
         iterations += report.iterations;
         for (r, d) in rotations.iter_mut().zip(&delta) {
             *r *= rotation_from_axis_angle(d);
         }
     }
     let edges = block_edges(graph, omegas, active, rotations, false);
-    let system = BlockSystem {
-        n: graph.n,
-        prior: tiny_prior(&edges),
-        edges,
-    };
-    let rhs = system.gather(|_, e| -(e.omega * e.r0));
     // From the current translations: late rounds move them by a fraction of a sigma.
-    let start = Some(&*translations);
-    let (t, report) = system.solve(&system.preconditioner(), &rhs, start, tolerance);
+    let (t, report) = solve_blocks(graph.n, edges, Some(&*translations), tolerance);
     iterations += report.iterations;
     translations.copy_from_slice(&t);
     if options.joint_steps > 0 {
@@ -105,6 +92,22 @@ pub(super) fn refine(
         iterations += joint.cg_iterations;
     }
     iterations
+}
+
+/// The least-squares solution of the block edges (with a tiny prior), from `start`.
+fn solve_blocks(
+    n: usize,
+    edges: Vec<BlockEdge>,
+    start: Option<&[Vector3<f64>]>,
+    tolerance: StepTolerance,
+) -> (Vec<Vector3<f64>>, BlockReport) {
+    let system = BlockSystem {
+        n,
+        prior: tiny_prior(&edges),
+        edges,
+    };
+    let rhs = system.gather(|_, e| -(e.omega * e.r0));
+    system.solve(&system.preconditioner(), &rhs, start, tolerance)
 }
 
 /// 1e-9 of the mean information: fixes the free motions without biasing the rest.
