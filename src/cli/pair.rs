@@ -223,6 +223,13 @@ fn table(reference: &str, moving: &str, r: &IcpResult, pose: &CentredPose, secon
             "ambiguity   {amb:.2} (best / second-best fit of the global search; near 1: another place fits as well)"
         );
     }
+    if let Some(b) = &r.backward {
+        let _ = writeln!(
+            t,
+            "backward    dx {:.3}  dy {:.3}  dz {:.3} m, yaw {:.4} deg from the forward fit ({:?}; beyond the noise: the midpoint is returned, the gap is in the sigmas)",
+            b.shift_m[0], b.shift_m[1], b.shift_m[2], b.rotation_deg[2], b.status
+        );
+    }
     let _ = writeln!(
         t,
         "residuals   {:.4} m to the reference surface, {:.4} m to its nearest pixel (RMS, inliers)",

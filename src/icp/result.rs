@@ -89,7 +89,22 @@ pub struct IcpResult {
     /// candidate, near 1: a second place fits nearly as well); None when the
     /// search was not run.
     pub ambiguity: Option<f64>,
+    /// How far the backward check (the reference registered onto the moving
+    /// DSM) landed from the forward answer; None when it did not run. The
+    /// returned transform is the midpoint of the two, and this disagreement is
+    /// part of the standard errors (see `icp::backward`).
+    pub backward: Option<BackwardCheck>,
     pub nn: NnStatsSummary,
+}
+
+/// The forward answer against the inverse of the backward one, at the fit's centroid.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct BackwardCheck {
+    /// [dx, dy, dz] metres, CRS axes.
+    pub shift_m: [f64; 3],
+    /// [roll, pitch, yaw] degrees (rotation vector components).
+    pub rotation_deg: [f64; 3],
+    pub status: IcpStatus,
 }
 
 #[derive(Clone, Copy, Debug, Default, Serialize)]

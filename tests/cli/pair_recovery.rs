@@ -82,6 +82,7 @@ fn check_pair(size: u32, seed: u32, dsmgen_args: &[&str], tol: Tolerance) {
     // the overlap: from tile_01's left edge to tile_00's right edge, full height
     let (x0, x1, y0, y1) = (g(1, 0), g(0, 0) + side_m, g(0, 3) - side_m, g(0, 3));
     let corners = [(x0, y0), (x1, y0), (x0, y1), (x1, y1)];
+    let mut both = Vec::new();
     for (reference, moving, k_ref, k_mov) in
         [("tile_00", "tile_01", 0, 1), ("tile_01", "tile_00", 1, 0)]
     {
@@ -104,7 +105,21 @@ fn check_pair(size: u32, seed: u32, dsmgen_args: &[&str], tol: Tolerance) {
             sigma_yaw > 0.0002 && sigma_yaw < 0.005 && a_deg < 5.0 * sigma_yaw,
             "sigma_yaw {sigma_yaw} deg vs error {a_deg} deg"
         );
+        // the backward check ran and, on a well-posed pair, agrees to centimetres
+        let gap = &doc["result"]["backward"]["shift_m"];
+        let gap_m = (0..3)
+            .map(|k| gap[k].as_f64().unwrap().powi(2))
+            .sum::<f64>()
+            .sqrt();
+        assert!(gap_m < 0.05, "backward check {gap}");
+        both.push(est);
     }
+    // the two directions agree: forward * inverse is the identity to centimetres
+    let (d_m, a_deg) = error(&(both[0] * both[1]), &Matrix4::identity(), &corners);
+    assert!(
+        d_m < 0.05 && a_deg < 0.005,
+        "forward * inverse: {d_m} m, {a_deg} deg"
+    );
     assert!(Path::new(&store).exists());
 }
 
