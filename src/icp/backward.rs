@@ -90,54 +90,113 @@ impl Disagreement {
         }
     }
 
-    /// Per-axis variance to add, (x, y, z, roll, pitch, yaw) in m^2 and rad^2:
-    /// the squared gap beyond what the two fits' own noise (`noise`, the sum
-    /// of their variances per axis) explains. Two well-posed fits differ by
-    /// their noise alone and add nothing; a gap of many sigmas is model error.
-    pub fn variance(&self, noise: &Vector6<f64>) -> Vector6<f64> {
+    /// The gap as one 6-vector (x, y, z [m], roll, pitch, yaw [rad]).
+    pub fn gap(&self) -> Vector6<f64> {
         let (s, r) = (&self.shift_m, &self.rotation_rad);
-        let gap = Vector6::new(s.x, s.y, s.z, r.x, r.y, r.z).map(|v| v * v);
-        (gap - noise).map(|v| v.max(0.0))
+        Vector6::new(s.x, s.y, s.z, r.x, r.y, r.z)
+    }
+
+    /// The gap against `joint`, the covariance of the difference of two fits
+    /// that see only noise: its squared Mahalanobis length over the directions
+    /// `joint` measures, and their number.
+    pub fn test(&self, joint: &Matrix6<f64>) -> GapTest {
+        let (inverse, dof) = pseudo_inverse(joint);
+        let gap = self.gap();
+        GapTest {
+            chi_square: (gap.transpose() * inverse * gap)[(0, 0)],
+            dof,
+        }
+    }
+
+    /// The covariance to add when the gap is not noise: rank one along the
+    /// gap, sized so that the gap becomes one standard deviation of `joint`
+    /// plus the addition (Sherman-Morrison: g' (J + k g g')^-1 g = c / (1 + k c)
+    /// with c the chi-square, so k = 1 - 1/c). The model error lies along the
+    /// direction the two fits slid apart (a yaw-and-shift valley), not on
+    /// every axis at once.
+    pub fn model_error(&self, test: &GapTest) -> Matrix6<f64> {
+        let gap = self.gap();
+        gap * gap.transpose() * (1.0 - 1.0 / test.chi_square).max(0.0)
     }
 }
 
-/// `forward` moved to the midpoint, with the part of `disagreement` that the
-/// noise of the two fits does not explain added to its variances.
+/// A forward-backward gap tested against the two fits' noise.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct GapTest {
+    pub chi_square: f64,
+    /// Directions the joint covariance measures (1-6).
+    pub dof: usize,
+}
+
+/// Chi-square quantiles at 0.999 for 1-6 degrees of freedom: a gap this far
+/// out is not the noise of two well-posed fits (1 in 1000 would be).
+const CHI_SQUARE_0_999: [f64; 6] = [10.828, 13.816, 16.266, 18.467, 20.515, 22.458];
+
+impl GapTest {
+    /// More than the two fits' noise explains (beyond the 0.999 quantile).
+    pub fn beyond_noise(&self) -> bool {
+        self.dof > 0 && self.chi_square > CHI_SQUARE_0_999[self.dof - 1]
+    }
+}
+
+/// The covariance of forward minus inverse backward under noise alone: the
+/// sum of the two fits' covariances, the backward one moved from its
+/// centroid (on the moving DSM, taken into the reference by `forward`) to the
+/// forward centroid (the translation at c is the one at c' plus w x (c - c')).
+/// The two directions share their ground and noise, so this sum overstates
+/// the spread of their gap: the test errs towards leaving a pair alone.
+pub(super) fn joint_covariance(
+    forward: &FitInformation,
+    backward: &FitInformation,
+    t_ref_moving: &Isometry3<f64>,
+) -> Matrix6<f64> {
+    let centroid = t_ref_moving.transform_point(&backward.centroid.into()).coords;
+    let lever = forward.centroid - centroid;
+    let mut move_to = Matrix6::identity();
+    move_to
+        .fixed_view_mut::<3, 3>(0, 3)
+        .copy_from(&-lever.cross_matrix());
+    forward.covariance_6x6 + move_to * backward.covariance_6x6 * move_to.transpose()
+}
+
+/// The forward answer, or, when the gap to the backward one is beyond the
+/// two fits' noise, their midpoint with the gap added to its covariance.
 pub(super) fn reconcile(
     mut forward: IcpResult,
     backward: &IcpResult,
     disagreement: &Disagreement,
 ) -> IcpResult {
-    let status = backward.status;
     let (s, r) = (&disagreement.shift_m, &disagreement.rotation_rad);
     forward.backward = Some(BackwardCheck {
         shift_m: [s.x, s.y, s.z],
         rotation_deg: [r.x.to_degrees(), r.y.to_degrees(), r.z.to_degrees()],
-        status,
+        status: backward.status,
     });
-    let diagonal = |r: &IcpResult| r.information.as_ref().map(|i| i.covariance_6x6.diagonal());
-    if let Some(f) = diagonal(&forward) {
-        let noise = f + diagonal(backward).unwrap_or(f);
-        let extra = disagreement.variance(&noise);
-        // agreement within the noise: the forward answer and its sigmas stand
-        if extra.iter().any(|&v| v > 0.0) {
-            forward.t_ref_moving = disagreement.midpoint;
-            if let Some(info) = forward.information.as_mut() {
-                inflate(info, &extra);
-            }
-        }
+    let Some(info) = forward.information.as_mut() else {
+        return forward;
+    };
+    let joint = match &backward.information {
+        Some(b) => joint_covariance(info, b, &forward.t_ref_moving),
+        None => info.covariance_6x6 * 2.0,
+    };
+    let test = disagreement.test(&joint);
+    tracing::debug!(chi_square = test.chi_square, dof = test.dof, "backward gap tested");
+    // within the noise: the forward answer and its sigmas stand
+    if test.beyond_noise() {
+        forward.t_ref_moving = disagreement.midpoint;
+        inflate(info, &disagreement.model_error(&test));
     }
     forward
 }
 
-/// Adds `extra` (per-axis variances, physical units) to the covariance of
-/// `info` on the directions it measures (held directions keep no information);
+/// Adds `extra` (a covariance, physical units) to the covariance of `info`
+/// on the directions it measures (held directions keep no information);
 /// its information and standard errors follow.
-pub(crate) fn inflate(info: &mut FitInformation, extra: &Vector6<f64>) {
+pub(crate) fn inflate(info: &mut FitInformation, extra: &Matrix6<f64>) {
     let range = range_projector(&info.covariance_6x6);
-    info.covariance_6x6 += range * Matrix6::from_diagonal(extra) * range;
+    info.covariance_6x6 += range * extra * range;
     info.covariance_6x6 = (info.covariance_6x6 + info.covariance_6x6.transpose()) * 0.5;
-    info.info_6x6 = pseudo_inverse(&info.covariance_6x6);
+    info.info_6x6 = pseudo_inverse(&info.covariance_6x6).0;
     for k in 0..6 {
         if info.sigma[k].is_some() {
             let sd = info.covariance_6x6[(k, k)].max(0.0).sqrt();
@@ -161,15 +220,19 @@ fn range_projector(c: &Matrix6<f64>) -> Matrix6<f64> {
     p
 }
 
-fn pseudo_inverse(c: &Matrix6<f64>) -> Matrix6<f64> {
+/// The pseudo-inverse of a covariance over the directions it gives a
+/// variance, and their number.
+fn pseudo_inverse(c: &Matrix6<f64>) -> (Matrix6<f64>, usize) {
     let eig = c.symmetric_eigen();
     let max = eig.eigenvalues.amax();
     let mut inv = Matrix6::zeros();
+    let mut rank = 0;
     for k in (0..6).filter(|&k| max > 0.0 && eig.eigenvalues[k] > EMPTY * max) {
         let v = eig.eigenvectors.column(k);
         inv += v * v.transpose() / eig.eigenvalues[k];
+        rank += 1;
     }
-    inv
+    (inv, rank)
 }
 
 #[cfg(test)]
@@ -178,7 +241,7 @@ mod tests {
     use crate::fit::Axis;
 
     #[test]
-    fn agreeing_directions_add_nothing_and_keep_the_answer() {
+    fn agreeing_directions_keep_the_answer() {
         let at = Vector3::new(500_000.0, 4_800_000.0, 200.0);
         let t = isometry_to_world(
             &Isometry3::from_parts(
@@ -188,7 +251,9 @@ mod tests {
             &at,
         );
         let d = Disagreement::between(&t, &t.inverse(), &at);
-        assert!(d.variance(&Vector6::zeros()).norm() < 1e-18);
+        assert!(d.gap().norm() < 1e-9);
+        let test = d.test(&Matrix6::identity());
+        assert!(!test.beyond_noise() && test.dof == 6, "{test:?}");
         let p = nalgebra::Point3::from(at);
         assert!((d.midpoint.transform_point(&p) - t.transform_point(&p)).norm() < 1e-6);
     }
@@ -208,14 +273,65 @@ mod tests {
         let d = Disagreement::between(&forward, &other.inverse(), &at);
         assert!((d.shift_m - Vector3::new(0.2, 0.0, 0.0)).norm() < 1e-9);
         assert!((d.rotation_rad.z - 0.01).abs() < 1e-12);
-        // a gap the two fits' noise explains adds nothing; beyond it, the excess
-        let v = d.variance(&Vector6::new(0.05, 0.0, 0.0, 0.0, 0.0, 1e-3));
-        assert_eq!((v[0], v[5]), (0.0, 0.0));
-        let v = d.variance(&Vector6::new(0.03, 0.0, 0.0, 0.0, 0.0, 0.0));
-        assert!((v[0] - 0.01).abs() < 1e-9 && (v[5] - 1e-4).abs() < 1e-12);
         let p = nalgebra::Point3::from(at);
         let mid = d.midpoint.transform_point(&p) - p;
         assert!((mid.x - 1.1).abs() < 1e-6 && mid.y.abs() < 1e-6, "{mid}");
+    }
+
+    #[test]
+    fn a_gap_within_the_joint_noise_passes_and_one_beyond_becomes_one_sigma() {
+        let d = Disagreement {
+            shift_m: Vector3::new(0.2, 0.0, 0.0),
+            rotation_rad: Vector3::new(0.0, 0.0, 0.01),
+            midpoint: Isometry3::identity(),
+        };
+        // 0.2 m against 0.1 m, 0.01 rad against 0.005 rad: chi-square 8 of 6 dof
+        let noisy = Matrix6::from_diagonal(&Vector6::new(0.01, 0.01, 0.01, 1.0, 1.0, 2.5e-5));
+        let test = d.test(&noisy);
+        assert!((test.chi_square - 8.0).abs() < 1e-9 && test.dof == 6);
+        assert!(!test.beyond_noise());
+        // ten times tighter: chi-square 800
+        let tight = noisy * 0.01;
+        let test = d.test(&tight);
+        assert!(test.beyond_noise(), "{test:?}");
+        let grown = tight + d.model_error(&test);
+        let after = d.test(&grown);
+        assert!((after.chi_square - 1.0).abs() < 1e-9, "{after:?}");
+        // the addition lies along the gap: nothing on the axes it did not move
+        let e = d.model_error(&test);
+        assert!(e[(1, 1)] == 0.0 && e[(3, 3)] == 0.0 && e[(0, 5)] > 0.0);
+        // fewer measured directions, fewer degrees of freedom
+        let mut held = tight;
+        held[(2, 2)] = 0.0;
+        assert_eq!(d.test(&held).dof, 5);
+    }
+
+    fn information(covariance: Matrix6<f64>, centroid: Vector3<f64>) -> FitInformation {
+        FitInformation {
+            info_6x6: pseudo_inverse(&covariance).0,
+            covariance_6x6: covariance,
+            sigma: [None; 6],
+            degenerate: Vec::new(),
+            centroid,
+            effective_samples: 100.0,
+        }
+    }
+
+    #[test]
+    fn the_backward_covariance_is_moved_to_the_forward_centroid() {
+        let c = Vector3::new(500_000.0, 4_800_000.0, 200.0);
+        let forward = information(Matrix6::identity() * 1e-4, c);
+        // yaw known to 0.001 rad about a point 100 m east (in the moving DSM,
+        // which the forward answer shifts 10 m north): at c, 0.1 m of y
+        let mut yaw_only = Matrix6::zeros();
+        yaw_only[(5, 5)] = 1e-6;
+        let backward = information(yaw_only, c + Vector3::new(100.0, -10.0, 0.0));
+        let t = Isometry3::translation(0.0, 10.0, 0.0);
+        let joint = joint_covariance(&forward, &backward, &t);
+        assert!((joint[(1, 1)] - (1e-4 + 1e-2)).abs() < 1e-12, "{joint}");
+        assert!((joint[(0, 0)] - 1e-4).abs() < 1e-15);
+        assert!((joint[(5, 5)] - (1e-4 + 1e-6)).abs() < 1e-15);
+        assert!((joint[(1, 5)] + 1e-4).abs() < 1e-12, "{joint}");
     }
 
     #[test]
@@ -237,7 +353,10 @@ mod tests {
             centroid: Vector3::zeros(),
             effective_samples: 100.0,
         };
-        inflate(&mut info, &Vector6::new(0.03, 0.0, 5.0, 0.0, 0.0, 3e-4));
+        inflate(
+            &mut info,
+            &Matrix6::from_diagonal(&Vector6::new(0.03, 0.0, 5.0, 0.0, 0.0, 3e-4)),
+        );
         assert!((info.sigma[0].unwrap() - 0.2).abs() < 1e-12);
         assert!((info.sigma[1].unwrap() - 0.1).abs() < 1e-12);
         assert_eq!(info.sigma[2], None);
