@@ -4,20 +4,23 @@
 //! Point-to-surface ICP compares points of the moving DSM with the bilinear
 //! surface of the reference, so the two directions see different samplings of
 //! the same ground. Where the data pin the transform down (a wide overlap, sharp
-//! relief) both directions agree to millimetres; on a narrow strip of small
+//! relief) both directions agree within their noise; on a narrow strip of small
 //! tiles the cost is shallow along a yaw-and-shift valley and each direction can
 //! settle a few decimetres and a fraction of a degree away from the truth, with
 //! a sandwich standard error of centimetres that only measures the noise of its
-//! own minimum. Measured on a 20 x 20 grid of 128 m tiles (docs/measurements.md,
-//! "backward check"), the forward-backward disagreement tracks that error: it is
-//! the part of the uncertainty the noise model cannot see.
+//! own minimum. On a 20 x 20 grid of 128 m tiles the forward-backward gap
+//! tracks that error (docs/notes/backward.md): it is the part of the
+//! uncertainty the noise model cannot see.
 //!
-//! So when the two answers differ by more than their own noise explains on
-//! some axis, the pair reports their midpoint and adds the excess squared
-//! disagreement of each axis to that axis's variance (a model-error term);
-//! when they agree within the noise, the forward answer and sigmas stand.
+//! The gap (a 6-vector at the forward fit's centroid) is tested against the
+//! covariance of two fits that see only noise (the sum of theirs): within the
+//! 0.999 chi-square quantile the forward answer and its covariance stand, so
+//! well-posed pairs are left exactly as they were. Beyond it, the forward
+//! answer stays (the midpoint of the two was no closer to the truth, measured)
+//! and the gap is added to its covariance along the gap's own direction,
+//! sized so that the gap becomes one standard deviation.
 
-use nalgebra::{Isometry3, Matrix6, Translation3, UnitQuaternion, Vector3, Vector6};
+use nalgebra::{Isometry3, Matrix6, Vector3, Vector6};
 
 use super::level::Level;
 use super::start::moved_overlap;
@@ -63,30 +66,20 @@ pub(super) fn register_backward<R: Pyramid, M: Pyramid>(
 
 /// How far the forward answer and the inverse of the backward one are apart,
 /// at the forward fit's centroid: translation (metres) and rotation vector
-/// (radians), axes of the CRS. Also the midpoint of the two answers.
+/// (radians), axes of the CRS.
 pub(super) struct Disagreement {
     pub shift_m: Vector3<f64>,
     pub rotation_rad: Vector3<f64>,
-    pub midpoint: Isometry3<f64>,
 }
 
 impl Disagreement {
     /// `forward` maps moving -> reference, `backward` reference -> moving.
     pub fn between(forward: &Isometry3<f64>, backward: &Isometry3<f64>, at: &Vector3<f64>) -> Self {
         let local = |t: &Isometry3<f64>| isometry_to_world(t, &-at);
-        let f = local(forward);
-        let b = local(&backward.inverse());
-        let d = f.inverse() * b;
-        let shift_m = d.translation.vector;
-        let rotation_rad = d.rotation.scaled_axis();
-        let half = Isometry3::from_parts(
-            Translation3::from(shift_m * 0.5),
-            UnitQuaternion::from_scaled_axis(rotation_rad * 0.5),
-        );
+        let d = local(forward).inverse() * local(&backward.inverse());
         Disagreement {
-            shift_m,
-            rotation_rad,
-            midpoint: isometry_to_world(&(f * half), at),
+            shift_m: d.translation.vector,
+            rotation_rad: d.rotation.scaled_axis(),
         }
     }
 
@@ -150,7 +143,9 @@ pub(super) fn joint_covariance(
     backward: &FitInformation,
     t_ref_moving: &Isometry3<f64>,
 ) -> Matrix6<f64> {
-    let centroid = t_ref_moving.transform_point(&backward.centroid.into()).coords;
+    let centroid = t_ref_moving
+        .transform_point(&backward.centroid.into())
+        .coords;
     let lever = forward.centroid - centroid;
     let mut move_to = Matrix6::identity();
     move_to
@@ -159,32 +154,34 @@ pub(super) fn joint_covariance(
     forward.covariance_6x6 + move_to * backward.covariance_6x6 * move_to.transpose()
 }
 
-/// The forward answer, or, when the gap to the backward one is beyond the
-/// two fits' noise, their midpoint with the gap added to its covariance.
+/// The forward answer with the backward check recorded; when the gap to the
+/// backward answer is beyond the two fits' noise, the gap is added to its
+/// covariance.
 pub(super) fn reconcile(
     mut forward: IcpResult,
     backward: &IcpResult,
     disagreement: &Disagreement,
 ) -> IcpResult {
+    let test = forward.information.as_ref().map(|info| {
+        let joint = match &backward.information {
+            Some(b) => joint_covariance(info, b, &forward.t_ref_moving),
+            None => info.covariance_6x6 * 2.0,
+        };
+        disagreement.test(&joint)
+    });
     let (s, r) = (&disagreement.shift_m, &disagreement.rotation_rad);
     forward.backward = Some(BackwardCheck {
         shift_m: [s.x, s.y, s.z],
         rotation_deg: [r.x.to_degrees(), r.y.to_degrees(), r.z.to_degrees()],
         status: backward.status,
+        chi_square: test.map(|t| t.chi_square),
+        beyond_noise: test.is_some_and(|t| t.beyond_noise()),
     });
-    let Some(info) = forward.information.as_mut() else {
-        return forward;
-    };
-    let joint = match &backward.information {
-        Some(b) => joint_covariance(info, b, &forward.t_ref_moving),
-        None => info.covariance_6x6 * 2.0,
-    };
-    let test = disagreement.test(&joint);
-    tracing::debug!(chi_square = test.chi_square, dof = test.dof, "backward gap tested");
-    // within the noise: the forward answer and its sigmas stand
-    if test.beyond_noise() {
-        forward.t_ref_moving = disagreement.midpoint;
-        inflate(info, &disagreement.model_error(&test));
+    // within the noise: the forward covariance stands
+    if let (Some(test), Some(info)) = (test, forward.information.as_mut()) {
+        if test.beyond_noise() {
+            inflate(info, &disagreement.model_error(&test));
+        }
     }
     forward
 }
@@ -239,6 +236,7 @@ fn pseudo_inverse(c: &Matrix6<f64>) -> (Matrix6<f64>, usize) {
 mod tests {
     use super::*;
     use crate::fit::Axis;
+    use nalgebra::{Translation3, UnitQuaternion};
 
     #[test]
     fn agreeing_directions_keep_the_answer() {
@@ -254,12 +252,10 @@ mod tests {
         assert!(d.gap().norm() < 1e-9);
         let test = d.test(&Matrix6::identity());
         assert!(!test.beyond_noise() && test.dof == 6, "{test:?}");
-        let p = nalgebra::Point3::from(at);
-        assert!((d.midpoint.transform_point(&p) - t.transform_point(&p)).norm() < 1e-6);
     }
 
     #[test]
-    fn the_disagreement_is_measured_at_the_centroid_and_split_in_half() {
+    fn the_disagreement_is_measured_at_the_centroid() {
         let at = Vector3::new(500_000.0, 4_800_000.0, 200.0);
         let forward = isometry_to_world(&Isometry3::translation(1.0, 0.0, 0.0), &at);
         // the backward answer, inverted, sits 0.2 m further east and turned 0.01 rad
@@ -273,9 +269,6 @@ mod tests {
         let d = Disagreement::between(&forward, &other.inverse(), &at);
         assert!((d.shift_m - Vector3::new(0.2, 0.0, 0.0)).norm() < 1e-9);
         assert!((d.rotation_rad.z - 0.01).abs() < 1e-12);
-        let p = nalgebra::Point3::from(at);
-        let mid = d.midpoint.transform_point(&p) - p;
-        assert!((mid.x - 1.1).abs() < 1e-6 && mid.y.abs() < 1e-6, "{mid}");
     }
 
     #[test]
@@ -283,7 +276,6 @@ mod tests {
         let d = Disagreement {
             shift_m: Vector3::new(0.2, 0.0, 0.0),
             rotation_rad: Vector3::new(0.0, 0.0, 0.01),
-            midpoint: Isometry3::identity(),
         };
         // 0.2 m against 0.1 m, 0.01 rad against 0.005 rad: chi-square 8 of 6 dof
         let noisy = Matrix6::from_diagonal(&Vector6::new(0.01, 0.01, 0.01, 1.0, 1.0, 2.5e-5));

@@ -71,8 +71,9 @@ pub fn register<R: Pyramid, M: Pyramid>(
 }
 
 /// The forward answer reconciled with the backward check ([`backward`]):
-/// the midpoint of the two, their disagreement added to its variances. Only
-/// for answers with information; a check that cannot run leaves it as is.
+/// when their gap is beyond the two fits' noise, the gap is added to its
+/// covariance. Only for answers with information; a check that cannot run
+/// leaves it as is.
 fn check_backward<R: Pyramid, M: Pyramid>(
     reference: &R,
     moving: &M,

@@ -90,9 +90,9 @@ pub struct IcpResult {
     /// search was not run.
     pub ambiguity: Option<f64>,
     /// How far the backward check (the reference registered onto the moving
-    /// DSM) landed from the forward answer; None when it did not run. The
-    /// returned transform is the midpoint of the two, and this disagreement is
-    /// part of the standard errors (see `icp::backward`).
+    /// DSM) landed from the forward answer; None when it did not run. A gap
+    /// beyond the two fits' noise is part of the covariance (see
+    /// `icp::backward`).
     pub backward: Option<BackwardCheck>,
     pub nn: NnStatsSummary,
 }
@@ -105,6 +105,11 @@ pub struct BackwardCheck {
     /// [roll, pitch, yaw] degrees (rotation vector components).
     pub rotation_deg: [f64; 3],
     pub status: IcpStatus,
+    /// The gap's chi-square against the two fits' joint covariance (None
+    /// without a covariance).
+    pub chi_square: Option<f64>,
+    /// Beyond the chi-square's 0.999 quantile: the gap widened the sigmas.
+    pub beyond_noise: bool,
 }
 
 #[derive(Clone, Copy, Debug, Default, Serialize)]
