@@ -224,6 +224,7 @@ mod tests {
             centre_m: [10.0, 0.0, 0.0],
             degenerate: Vec::new(),
             ambiguity: None,
+            backward: None,
             nn: Default::default(),
         };
         let raw = to_raw_frames(r, &s_ref, &s_mov);

@@ -223,6 +223,15 @@ fn table(reference: &str, moving: &str, r: &IcpResult, pose: &CentredPose, secon
             "ambiguity   {amb:.2} (best / second-best fit of the global search; near 1: another place fits as well)"
         );
     }
+    if let Some(b) = &r.backward {
+        let _ = writeln!(
+            t,
+            "backward    dx {:.3}  dy {:.3}  dz {:.3} m, yaw {:.4} deg from the forward fit ({:?}; chi-square {:.1}: {})",
+            b.shift_m[0], b.shift_m[1], b.shift_m[2], b.rotation_deg[2], b.status,
+            b.chi_square.unwrap_or(f64::NAN),
+            if b.beyond_noise { "beyond the two fits' noise, added to the sigmas" } else { "within the noise" }
+        );
+    }
     let _ = writeln!(
         t,
         "residuals   {:.4} m to the reference surface, {:.4} m to its nearest pixel (RMS, inliers)",

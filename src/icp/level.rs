@@ -295,6 +295,7 @@ impl LevelOutcome {
             centre_m: [centre.x, centre.y, centre.z],
             degenerate,
             ambiguity: None,
+            backward: None,
             nn: NnStatsSummary {
                 queries: self.nn.queries,
                 pixels_visited: self.nn.pixels_visited,

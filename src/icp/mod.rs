@@ -13,6 +13,7 @@
 //! (exact grid NN matches, parallel over blocks).
 
 pub mod associate;
+mod backward;
 pub mod config;
 mod iterate;
 mod level;
@@ -24,7 +25,9 @@ pub mod start;
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
 pub use config::{IcpConfig, Metric};
-pub use result::{CentredPose, CentredSigma, IcpError, IcpResult, IcpStatus, NnStatsSummary};
+pub use result::{
+    BackwardCheck, CentredPose, CentredSigma, IcpError, IcpResult, IcpStatus, NnStatsSummary,
+};
 
 /// Row-major 4x4 of a transform: [`crate::geo::rigid::to_rows`].
 pub use crate::geo::rigid::to_rows as matrix_rows;
@@ -63,7 +66,40 @@ pub fn register<R: Pyramid, M: Pyramid>(
     if tried.is_empty() {
         return Err(first_error.unwrap_or(IcpError::EmptyOverlap));
     }
-    Ok(choose(tried, starts.ambiguity, starts.pixel_m))
+    let forward = choose(tried, starts.ambiguity, starts.pixel_m);
+    Ok(check_backward(reference, moving, config, &starts, forward))
+}
+
+/// The forward answer reconciled with the backward check ([`backward`]):
+/// when their gap is beyond the two fits' noise, the gap is added to its
+/// covariance. Only for answers with information; a check that cannot run
+/// leaves it as is.
+fn check_backward<R: Pyramid, M: Pyramid>(
+    reference: &R,
+    moving: &M,
+    config: &IcpConfig,
+    starts: &Starts,
+    forward: IcpResult,
+) -> IcpResult {
+    let Some(at) = forward.information.as_ref().map(|i| i.centroid) else {
+        return forward;
+    };
+    let limits = (starts.pixel_m, starts.radius_m);
+    match backward::register_backward(reference, moving, config, &forward, limits) {
+        Ok(back) if !matches!(back.status, IcpStatus::TooFewInliers | IcpStatus::Diverged) => {
+            let d = backward::Disagreement::between(&forward.t_ref_moving, &back.t_ref_moving, &at);
+            tracing::debug!(shift_m = ?d.shift_m, rotation_rad = ?d.rotation_rad, status = ?back.status, "backward check");
+            backward::reconcile(forward, &back, &d)
+        }
+        Ok(back) => {
+            tracing::debug!(status = ?back.status, "backward check did not finish");
+            forward
+        }
+        Err(e) => {
+            tracing::debug!(error = %e, "backward check could not run");
+            forward
+        }
+    }
 }
 
 /// The best of the results from several starts: usable before not, then the

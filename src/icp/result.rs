@@ -89,7 +89,27 @@ pub struct IcpResult {
     /// candidate, near 1: a second place fits nearly as well); None when the
     /// search was not run.
     pub ambiguity: Option<f64>,
+    /// How far the backward check (the reference registered onto the moving
+    /// DSM) landed from the forward answer; None when it did not run. A gap
+    /// beyond the two fits' noise is part of the covariance (see
+    /// `icp::backward`).
+    pub backward: Option<BackwardCheck>,
     pub nn: NnStatsSummary,
+}
+
+/// The forward answer against the inverse of the backward one, at the fit's centroid.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct BackwardCheck {
+    /// [dx, dy, dz] metres, CRS axes.
+    pub shift_m: [f64; 3],
+    /// [roll, pitch, yaw] degrees (rotation vector components).
+    pub rotation_deg: [f64; 3],
+    pub status: IcpStatus,
+    /// The gap's chi-square against the two fits' joint covariance (None
+    /// without a covariance).
+    pub chi_square: Option<f64>,
+    /// Beyond the chi-square's 0.999 quantile: the gap widened the sigmas.
+    pub beyond_noise: bool,
 }
 
 #[derive(Clone, Copy, Debug, Default, Serialize)]

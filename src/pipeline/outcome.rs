@@ -74,9 +74,13 @@ impl PairInformation {
 }
 
 impl IcpFit {
-    /// Converged, or still improving at the last iteration: the graph can use it.
+    /// Converged, still improving at the last iteration, or one of several
+    /// equally good fits: the graph can use it (only converged at full weight).
     pub fn usable(&self) -> bool {
-        matches!(self.status, IcpStatus::Converged | IcpStatus::MaxIterations)
+        matches!(
+            self.status,
+            IcpStatus::Converged | IcpStatus::MaxIterations | IcpStatus::Ambiguous
+        )
     }
 
     /// The graph may trust this fit at full weight: it converged (its degenerate

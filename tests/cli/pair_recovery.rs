@@ -82,6 +82,7 @@ fn check_pair(size: u32, seed: u32, dsmgen_args: &[&str], tol: Tolerance) {
     // the overlap: from tile_01's left edge to tile_00's right edge, full height
     let (x0, x1, y0, y1) = (g(1, 0), g(0, 0) + side_m, g(0, 3) - side_m, g(0, 3));
     let corners = [(x0, y0), (x1, y0), (x0, y1), (x1, y1)];
+    let (mut both, mut sigmas_yaw) = (Vec::new(), Vec::new());
     for (reference, moving, k_ref, k_mov) in
         [("tile_00", "tile_01", 0, 1), ("tile_01", "tile_00", 1, 0)]
     {
@@ -104,7 +105,30 @@ fn check_pair(size: u32, seed: u32, dsmgen_args: &[&str], tol: Tolerance) {
             sigma_yaw > 0.0002 && sigma_yaw < 0.005 && a_deg < 5.0 * sigma_yaw,
             "sigma_yaw {sigma_yaw} deg vs error {a_deg} deg"
         );
+        // the backward check ran and, on a well-posed pair, agrees to centimetres
+        let gap = &doc["result"]["backward"]["shift_m"];
+        let gap_m = (0..3)
+            .map(|k| gap[k].as_f64().unwrap().powi(2))
+            .sum::<f64>()
+            .sqrt();
+        assert!(gap_m < 0.05, "backward check {gap}");
+        // ... within the two fits' noise, so the forward answer's sigmas stand
+        // (issue 11: a gate that fires on well-posed pairs reweights the graph)
+        let check = &doc["result"]["backward"];
+        assert_eq!(check["beyond_noise"], false, "backward check {check}");
+        both.push(est);
+        sigmas_yaw.push(sigma_yaw);
     }
+    // the two directions agree: forward * inverse is the identity to
+    // centimetres, and in rotation to 0.005 deg or, where the yaw is looser,
+    // three standard deviations of the two runs' difference (no midpoint
+    // makes them agree: each run returns its forward answer)
+    let (d_m, a_deg) = error(&(both[0] * both[1]), &Matrix4::identity(), &corners);
+    let joint_sigma_deg = sigmas_yaw.iter().map(|s| s * s).sum::<f64>().sqrt();
+    assert!(
+        d_m < 0.05 && a_deg < 0.005_f64.max(3.0 * joint_sigma_deg),
+        "forward * inverse: {d_m} m, {a_deg} deg (yaw sigmas {sigmas_yaw:?})"
+    );
     assert!(Path::new(&store).exists());
 }
 

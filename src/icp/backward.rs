@@ -1,0 +1,360 @@
+//! The backward check of a pair: the reference DSM registered onto the moving
+//! one, at full resolution, starting from the inverse of the forward answer.
+//!
+//! Point-to-surface ICP compares points of the moving DSM with the bilinear
+//! surface of the reference, so the two directions see different samplings of
+//! the same ground. Where the data pin the transform down (a wide overlap, sharp
+//! relief) both directions agree within their noise; on a narrow strip of small
+//! tiles the cost is shallow along a yaw-and-shift valley and each direction can
+//! settle a few decimetres and a fraction of a degree away from the truth, with
+//! a sandwich standard error of centimetres that only measures the noise of its
+//! own minimum. On a 20 x 20 grid of 128 m tiles the forward-backward gap
+//! tracks that error (docs/notes/backward.md): it is the part of the
+//! uncertainty the noise model cannot see.
+//!
+//! The gap (a 6-vector at the forward fit's centroid) is tested against the
+//! covariance of two fits that see only noise (the sum of theirs): within the
+//! 0.999 chi-square quantile the forward answer and its covariance stand, so
+//! well-posed pairs are left exactly as they were. Beyond it, the forward
+//! answer stays (the midpoint of the two was no closer to the truth, measured)
+//! and the gap is added to its covariance along the gap's own direction,
+//! sized so that the gap becomes one standard deviation.
+
+use nalgebra::{Isometry3, Matrix6, Vector3, Vector6};
+
+use super::level::Level;
+use super::start::moved_overlap;
+use super::{config, final_rule, BackwardCheck, IcpConfig, IcpError, IcpResult, Rules};
+use crate::fit::FitInformation;
+use crate::geo::rigid::isometry_to_world;
+use crate::grid::Pyramid;
+
+/// The reference registered onto the moving DSM from the inverse of `forward`
+/// (the reference's points are sampled, the moving DSM is the surface); the
+/// result maps reference points into the moving DSM (p_moving = T p_ref).
+pub(super) fn register_backward<R: Pyramid, M: Pyramid>(
+    reference: &R,
+    moving: &M,
+    config: &IcpConfig,
+    forward: &IcpResult,
+    (pixel_m, radius_m): (f64, f64),
+) -> Result<IcpResult, IcpError> {
+    let t_start_world = forward.t_ref_moving.inverse();
+    let centre = Vector3::from(forward.centre_m);
+    let shift = t_start_world.transform_point(&centre.into()).coords - centre;
+    let sampled = if shift.xy().norm() < config::PAPER_TAU_M {
+        Vector3::zeros()
+    } else {
+        shift
+    };
+    let overlap = moved_overlap(moving, reference, &sampled)?.ok_or(IcpError::NoOverlap)?;
+    let (centre_x, centre_y) = overlap.centre();
+    let origin_xy = Vector3::new(centre_x, centre_y, 0.0);
+    let level = Level::sample(moving, reference, 0, &overlap, &origin_xy, config)?;
+    let origin = level.origin(&origin_xy);
+    let t_start = isometry_to_world(&t_start_world, &-origin);
+    let rules = Rules {
+        degeneracy: final_rule(pixel_m),
+        start: t_start,
+        cap_m: radius_m,
+    };
+    let tau_m = config.tau_at(0, pixel_m, f64::NAN);
+    let outcome = level.run(&origin, t_start, tau_m, &rules)?;
+    let information = outcome.information(config, &final_rule(pixel_m));
+    Ok(outcome.into_result(&origin, information))
+}
+
+/// How far the forward answer and the inverse of the backward one are apart,
+/// at the forward fit's centroid: translation (metres) and rotation vector
+/// (radians), axes of the CRS.
+pub(super) struct Disagreement {
+    pub shift_m: Vector3<f64>,
+    pub rotation_rad: Vector3<f64>,
+}
+
+impl Disagreement {
+    /// `forward` maps moving -> reference, `backward` reference -> moving.
+    pub fn between(forward: &Isometry3<f64>, backward: &Isometry3<f64>, at: &Vector3<f64>) -> Self {
+        let local = |t: &Isometry3<f64>| isometry_to_world(t, &-at);
+        let d = local(forward).inverse() * local(&backward.inverse());
+        Disagreement {
+            shift_m: d.translation.vector,
+            rotation_rad: d.rotation.scaled_axis(),
+        }
+    }
+
+    /// The gap as one 6-vector (x, y, z [m], roll, pitch, yaw [rad]).
+    pub fn gap(&self) -> Vector6<f64> {
+        let (s, r) = (&self.shift_m, &self.rotation_rad);
+        Vector6::new(s.x, s.y, s.z, r.x, r.y, r.z)
+    }
+
+    /// The gap against `joint`, the covariance of the difference of two fits
+    /// that see only noise: its squared Mahalanobis length over the directions
+    /// `joint` measures, and their number.
+    pub fn test(&self, joint: &Matrix6<f64>) -> GapTest {
+        let (inverse, dof) = pseudo_inverse(joint);
+        let gap = self.gap();
+        GapTest {
+            chi_square: (gap.transpose() * inverse * gap)[(0, 0)],
+            dof,
+        }
+    }
+
+    /// The covariance to add when the gap is not noise: rank one along the
+    /// gap, sized so that the gap becomes one standard deviation of `joint`
+    /// plus the addition (Sherman-Morrison: g' (J + k g g')^-1 g = c / (1 + k c)
+    /// with c the chi-square, so k = 1 - 1/c). The model error lies along the
+    /// direction the two fits slid apart (a yaw-and-shift valley), not on
+    /// every axis at once.
+    pub fn model_error(&self, test: &GapTest) -> Matrix6<f64> {
+        let gap = self.gap();
+        gap * gap.transpose() * (1.0 - 1.0 / test.chi_square).max(0.0)
+    }
+}
+
+/// A forward-backward gap tested against the two fits' noise.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct GapTest {
+    pub chi_square: f64,
+    /// Directions the joint covariance measures (1-6).
+    pub dof: usize,
+}
+
+/// Chi-square quantiles at 0.999 for 1-6 degrees of freedom: a gap this far
+/// out is not the noise of two well-posed fits (1 in 1000 would be).
+const CHI_SQUARE_0_999: [f64; 6] = [10.828, 13.816, 16.266, 18.467, 20.515, 22.458];
+
+impl GapTest {
+    /// More than the two fits' noise explains (beyond the 0.999 quantile).
+    pub fn beyond_noise(&self) -> bool {
+        self.dof > 0 && self.chi_square > CHI_SQUARE_0_999[self.dof - 1]
+    }
+}
+
+/// The covariance of forward minus inverse backward under noise alone: the
+/// sum of the two fits' covariances, the backward one moved from its
+/// centroid (on the moving DSM, taken into the reference by `forward`) to the
+/// forward centroid (the translation at c is the one at c' plus w x (c - c')).
+/// The two directions share their ground and noise, so this sum overstates
+/// the spread of their gap: the test errs towards leaving a pair alone.
+pub(super) fn joint_covariance(
+    forward: &FitInformation,
+    backward: &FitInformation,
+    t_ref_moving: &Isometry3<f64>,
+) -> Matrix6<f64> {
+    let centroid = t_ref_moving
+        .transform_point(&backward.centroid.into())
+        .coords;
+    let lever = forward.centroid - centroid;
+    let mut move_to = Matrix6::identity();
+    move_to
+        .fixed_view_mut::<3, 3>(0, 3)
+        .copy_from(&-lever.cross_matrix());
+    forward.covariance_6x6 + move_to * backward.covariance_6x6 * move_to.transpose()
+}
+
+/// The forward answer with the backward check recorded; when the gap to the
+/// backward answer is beyond the two fits' noise, the gap is added to its
+/// covariance.
+pub(super) fn reconcile(
+    mut forward: IcpResult,
+    backward: &IcpResult,
+    disagreement: &Disagreement,
+) -> IcpResult {
+    let test = forward.information.as_ref().map(|info| {
+        let joint = match &backward.information {
+            Some(b) => joint_covariance(info, b, &forward.t_ref_moving),
+            None => info.covariance_6x6 * 2.0,
+        };
+        disagreement.test(&joint)
+    });
+    let (s, r) = (&disagreement.shift_m, &disagreement.rotation_rad);
+    forward.backward = Some(BackwardCheck {
+        shift_m: [s.x, s.y, s.z],
+        rotation_deg: [r.x.to_degrees(), r.y.to_degrees(), r.z.to_degrees()],
+        status: backward.status,
+        chi_square: test.map(|t| t.chi_square),
+        beyond_noise: test.is_some_and(|t| t.beyond_noise()),
+    });
+    // within the noise: the forward covariance stands
+    if let (Some(test), Some(info)) = (test, forward.information.as_mut()) {
+        if test.beyond_noise() {
+            inflate(info, &disagreement.model_error(&test));
+        }
+    }
+    forward
+}
+
+/// Adds `extra` (a covariance, physical units) to the covariance of `info`
+/// on the directions it measures (held directions keep no information);
+/// its information and standard errors follow.
+pub(crate) fn inflate(info: &mut FitInformation, extra: &Matrix6<f64>) {
+    let range = range_projector(&info.covariance_6x6);
+    info.covariance_6x6 += range * extra * range;
+    info.covariance_6x6 = (info.covariance_6x6 + info.covariance_6x6.transpose()) * 0.5;
+    info.info_6x6 = pseudo_inverse(&info.covariance_6x6).0;
+    for k in 0..6 {
+        if info.sigma[k].is_some() {
+            let sd = info.covariance_6x6[(k, k)].max(0.0).sqrt();
+            info.sigma[k] = Some(if k < 3 { sd } else { sd.to_degrees() });
+        }
+    }
+}
+
+/// Relative eigenvalue below which a covariance direction counts as empty.
+const EMPTY: f64 = 1e-12;
+
+/// The orthogonal projector onto the directions `c` gives a variance.
+fn range_projector(c: &Matrix6<f64>) -> Matrix6<f64> {
+    let eig = c.symmetric_eigen();
+    let max = eig.eigenvalues.amax();
+    let mut p = Matrix6::zeros();
+    for k in (0..6).filter(|&k| max > 0.0 && eig.eigenvalues[k] > EMPTY * max) {
+        let v = eig.eigenvectors.column(k);
+        p += v * v.transpose();
+    }
+    p
+}
+
+/// The pseudo-inverse of a covariance over the directions it gives a
+/// variance, and their number.
+fn pseudo_inverse(c: &Matrix6<f64>) -> (Matrix6<f64>, usize) {
+    let eig = c.symmetric_eigen();
+    let max = eig.eigenvalues.amax();
+    let mut inv = Matrix6::zeros();
+    let mut rank = 0;
+    for k in (0..6).filter(|&k| max > 0.0 && eig.eigenvalues[k] > EMPTY * max) {
+        let v = eig.eigenvectors.column(k);
+        inv += v * v.transpose() / eig.eigenvalues[k];
+        rank += 1;
+    }
+    (inv, rank)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fit::Axis;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    #[test]
+    fn agreeing_directions_keep_the_answer() {
+        let at = Vector3::new(500_000.0, 4_800_000.0, 200.0);
+        let t = isometry_to_world(
+            &Isometry3::from_parts(
+                Translation3::new(1.0, -2.0, 0.5),
+                UnitQuaternion::from_euler_angles(0.0, 0.0, 0.001),
+            ),
+            &at,
+        );
+        let d = Disagreement::between(&t, &t.inverse(), &at);
+        assert!(d.gap().norm() < 1e-9);
+        let test = d.test(&Matrix6::identity());
+        assert!(!test.beyond_noise() && test.dof == 6, "{test:?}");
+    }
+
+    #[test]
+    fn the_disagreement_is_measured_at_the_centroid() {
+        let at = Vector3::new(500_000.0, 4_800_000.0, 200.0);
+        let forward = isometry_to_world(&Isometry3::translation(1.0, 0.0, 0.0), &at);
+        // the backward answer, inverted, sits 0.2 m further east and turned 0.01 rad
+        let other = isometry_to_world(
+            &Isometry3::from_parts(
+                Translation3::new(1.2, 0.0, 0.0),
+                UnitQuaternion::from_euler_angles(0.0, 0.0, 0.01),
+            ),
+            &at,
+        );
+        let d = Disagreement::between(&forward, &other.inverse(), &at);
+        assert!((d.shift_m - Vector3::new(0.2, 0.0, 0.0)).norm() < 1e-9);
+        assert!((d.rotation_rad.z - 0.01).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_gap_within_the_joint_noise_passes_and_one_beyond_becomes_one_sigma() {
+        let d = Disagreement {
+            shift_m: Vector3::new(0.2, 0.0, 0.0),
+            rotation_rad: Vector3::new(0.0, 0.0, 0.01),
+        };
+        // 0.2 m against 0.1 m, 0.01 rad against 0.005 rad: chi-square 8 of 6 dof
+        let noisy = Matrix6::from_diagonal(&Vector6::new(0.01, 0.01, 0.01, 1.0, 1.0, 2.5e-5));
+        let test = d.test(&noisy);
+        assert!((test.chi_square - 8.0).abs() < 1e-9 && test.dof == 6);
+        assert!(!test.beyond_noise());
+        // ten times tighter: chi-square 800
+        let tight = noisy * 0.01;
+        let test = d.test(&tight);
+        assert!(test.beyond_noise(), "{test:?}");
+        let grown = tight + d.model_error(&test);
+        let after = d.test(&grown);
+        assert!((after.chi_square - 1.0).abs() < 1e-9, "{after:?}");
+        // the addition lies along the gap: nothing on the axes it did not move
+        let e = d.model_error(&test);
+        assert!(e[(1, 1)] == 0.0 && e[(3, 3)] == 0.0 && e[(0, 5)] > 0.0);
+        // fewer measured directions, fewer degrees of freedom
+        let mut held = tight;
+        held[(2, 2)] = 0.0;
+        assert_eq!(d.test(&held).dof, 5);
+    }
+
+    fn information(covariance: Matrix6<f64>, centroid: Vector3<f64>) -> FitInformation {
+        FitInformation {
+            info_6x6: pseudo_inverse(&covariance).0,
+            covariance_6x6: covariance,
+            sigma: [None; 6],
+            degenerate: Vec::new(),
+            centroid,
+            effective_samples: 100.0,
+        }
+    }
+
+    #[test]
+    fn the_backward_covariance_is_moved_to_the_forward_centroid() {
+        let c = Vector3::new(500_000.0, 4_800_000.0, 200.0);
+        let forward = information(Matrix6::identity() * 1e-4, c);
+        // yaw known to 0.001 rad about a point 100 m east (in the moving DSM,
+        // which the forward answer shifts 10 m north): at c, 0.1 m of y
+        let mut yaw_only = Matrix6::zeros();
+        yaw_only[(5, 5)] = 1e-6;
+        let backward = information(yaw_only, c + Vector3::new(100.0, -10.0, 0.0));
+        let t = Isometry3::translation(0.0, 10.0, 0.0);
+        let joint = joint_covariance(&forward, &backward, &t);
+        assert!((joint[(1, 1)] - (1e-4 + 1e-2)).abs() < 1e-12, "{joint}");
+        assert!((joint[(0, 0)] - 1e-4).abs() < 1e-15);
+        assert!((joint[(5, 5)] - (1e-4 + 1e-6)).abs() < 1e-15);
+        assert!((joint[(1, 5)] + 1e-4).abs() < 1e-12, "{joint}");
+    }
+
+    #[test]
+    fn inflation_adds_variance_to_measured_axes_only() {
+        let mut info = FitInformation {
+            info_6x6: Matrix6::from_diagonal(&Vector6::new(100.0, 100.0, 0.0, 1e4, 1e4, 1e4)),
+            covariance_6x6: Matrix6::from_diagonal(&Vector6::new(
+                0.01, 0.01, 0.0, 1e-4, 1e-4, 1e-4,
+            )),
+            sigma: [
+                Some(0.1),
+                Some(0.1),
+                None,
+                Some(0.01f64.to_degrees()),
+                Some(0.01f64.to_degrees()),
+                Some(0.01f64.to_degrees()),
+            ],
+            degenerate: vec![Axis::Z],
+            centroid: Vector3::zeros(),
+            effective_samples: 100.0,
+        };
+        inflate(
+            &mut info,
+            &Matrix6::from_diagonal(&Vector6::new(0.03, 0.0, 5.0, 0.0, 0.0, 3e-4)),
+        );
+        assert!((info.sigma[0].unwrap() - 0.2).abs() < 1e-12);
+        assert!((info.sigma[1].unwrap() - 0.1).abs() < 1e-12);
+        assert_eq!(info.sigma[2], None);
+        assert!((info.sigma[5].unwrap() - 0.02f64.to_degrees()).abs() < 1e-9);
+        assert!((info.info_6x6[(0, 0)] - 25.0).abs() < 1e-9);
+        assert_eq!(info.info_6x6[(2, 2)], 0.0);
+        assert_eq!(info.covariance_6x6[(2, 2)], 0.0);
+    }
+}
