@@ -61,11 +61,21 @@ impl EdgeInformation {
         Self::from_covariance(&info.covariance_6x6, reliable)
     }
 
-    /// The same from a 6x6 covariance of (x, y, z, roll, pitch, yaw).
+    /// The same from a 6x6 covariance of (x, y, z, roll, pitch, yaw), zero
+    /// along the directions the fit held: the marginal (Schur complement)
+    /// blocks of its pseudo-inverse. For a full-rank covariance they are the
+    /// inverses of its blocks; a held direction that mixes a shift and a
+    /// rotation (x with yaw along a narrow strip) leaves no information on
+    /// either, where the inverse of a block would read its zero variance as
+    /// certainty.
     pub fn from_covariance(c: &Matrix6<f64>, reliable: bool) -> Self {
+        let info = pseudo_inverse6(c);
+        let block = |r: usize, k: usize| info.fixed_view::<3, 3>(r, k).into_owned();
+        let (tt, tr, rr) = (block(0, 0), block(0, 3), block(3, 3));
+        let symmetric = |m: Matrix3<f64>| 0.5 * (m + m.transpose());
         EdgeInformation {
-            translation: block_inverse(&c.fixed_view::<3, 3>(0, 0).into_owned()),
-            rotation: block_inverse(&c.fixed_view::<3, 3>(3, 3).into_owned()),
+            translation: symmetric(tt - tr * block_inverse(&rr) * tr.transpose()),
+            rotation: symmetric(rr - tr.transpose() * block_inverse(&tt) * tr),
             reliable,
         }
     }
@@ -91,6 +101,20 @@ impl EdgeInformation {
         };
         ok(&self.rotation) && ok(&self.translation)
     }
+}
+
+/// Pseudo-inverse of a symmetric positive semi-definite 6x6 (relative cutoff 1e-12).
+fn pseudo_inverse6(c: &Matrix6<f64>) -> Matrix6<f64> {
+    let eig = c.symmetric_eigen();
+    let max = eig.eigenvalues.max();
+    let mut out = Matrix6::zeros();
+    for k in 0..6 {
+        if max > 0.0 && eig.eigenvalues[k] > 1e-12 * max {
+            let v = eig.eigenvectors.column(k);
+            out += v * v.transpose() / eig.eigenvalues[k];
+        }
+    }
+    out
 }
 
 /// Pseudo-inverse of a symmetric positive semi-definite 3x3 (relative cutoff 1e-12).

@@ -7,7 +7,7 @@ use crate::averaging::robust::rotation_vector;
 use crate::averaging::synthetic::{normal3, SplitMix64};
 use crate::graph::Edge;
 use crate::poses::rigid::{apply, inverse_rigid, rotation_from_axis_angle};
-use nalgebra::Matrix4;
+use nalgebra::{Matrix4, Vector6};
 
 struct Case {
     graph: PoseGraph,
@@ -457,4 +457,46 @@ fn case_chain(n: usize, seed: u64) -> Case {
         positions,
         outliers: Vec::new(),
     }
+}
+
+/// A full-rank covariance gives the inverses of its blocks; one that is zero
+/// along a held direction mixing x and yaw (a narrow strip) gives no
+/// information on x or yaw, and keeps what the other axes measured.
+#[test]
+fn edge_information_is_the_marginal_of_the_pseudo_inverse() {
+    let mut rng = SplitMix64::new(11);
+    let root = Matrix6::from_fn(|_, _| rng.normal());
+    let full = root * root.transpose() + Matrix6::identity() * 1e-3;
+    let e = EdgeInformation::from_covariance(&full, true);
+    let t = block_inverse(&full.fixed_view::<3, 3>(0, 0).into_owned());
+    let r = block_inverse(&full.fixed_view::<3, 3>(3, 3).into_owned());
+    assert!((e.translation - t).amax() <= 1e-6 * t.amax(), "{e:?}");
+    assert!((e.rotation - r).amax() <= 1e-6 * r.amax(), "{e:?}");
+
+    // sigmas 2 cm, 3 cm, 1 cm, 0.01 deg... along axes; x and yaw held together
+    let held = Vector6::new(1.0, 0.0, 0.0, 0.0, 0.0, 0.02).normalize();
+    let mut basis = vec![held];
+    for k in 0..6 {
+        let mut v = Vector6::zeros();
+        v[k] = 1.0;
+        for b in &basis {
+            v -= b * b.dot(&v);
+        }
+        if v.norm() > 1e-6 && basis.len() < 6 {
+            basis.push(v.normalize());
+        }
+    }
+    let mut cov = Matrix6::zeros();
+    for (k, v) in basis.iter().enumerate().skip(1) {
+        cov += v * v.transpose() * (0.01 * k as f64).powi(2);
+    }
+    // the blocks alone read the held direction's zero variance as certainty
+    let naive = block_inverse(&cov.fixed_view::<3, 3>(0, 0).into_owned());
+    assert!(naive[(0, 0)] > 1e3, "{naive}");
+    let e = EdgeInformation::from_covariance(&cov, true);
+    assert!(e.translation[(0, 0)].abs() < 1e-6, "{}", e.translation);
+    assert!(e.rotation[(2, 2)].abs() < 1e-6, "{}", e.rotation);
+    assert!(e.translation[(1, 1)] > 100.0 && e.translation[(2, 2)] > 100.0);
+    assert!(e.rotation[(0, 0)] > 100.0 && e.rotation[(1, 1)] > 100.0);
+    assert!(e.is_valid());
 }
