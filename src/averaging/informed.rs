@@ -72,10 +72,9 @@ impl EdgeInformation {
         let info = pseudo_inverse6(c);
         let block = |r: usize, k: usize| info.fixed_view::<3, 3>(r, k).into_owned();
         let (tt, tr, rr) = (block(0, 0), block(0, 3), block(3, 3));
-        let symmetric = |m: Matrix3<f64>| 0.5 * (m + m.transpose());
         EdgeInformation {
-            translation: symmetric(tt - tr * block_inverse(&rr) * tr.transpose()),
-            rotation: symmetric(rr - tr.transpose() * block_inverse(&tt) * tr),
+            translation: positive_part(&(tt - tr * block_inverse(&rr) * tr.transpose())),
+            rotation: positive_part(&(rr - tr.transpose() * block_inverse(&tt) * tr)),
             reliable,
         }
     }
@@ -101,6 +100,21 @@ impl EdgeInformation {
         };
         ok(&self.rotation) && ok(&self.translation)
     }
+}
+
+/// The symmetric part of `m` with its negative eigenvalues set to zero (the
+/// Schur complements of an ill-conditioned information can come out a
+/// rounding error below zero, which [`EdgeInformation::is_valid`] refuses).
+fn positive_part(m: &Matrix3<f64>) -> Matrix3<f64> {
+    let eig = (0.5 * (m + m.transpose())).symmetric_eigen();
+    let mut out = Matrix3::zeros();
+    for k in 0..3 {
+        if eig.eigenvalues[k] > 0.0 {
+            let v = eig.eigenvectors.column(k);
+            out += v * v.transpose() * eig.eigenvalues[k];
+        }
+    }
+    out
 }
 
 /// Pseudo-inverse of a symmetric positive semi-definite 6x6 (relative cutoff 1e-12).
