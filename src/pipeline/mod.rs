@@ -74,6 +74,8 @@ pub fn run(
         .collect();
     let total = tasks.len();
     let mut outcomes = done;
+    // the total (and the pairs reused from the journal) from the start
+    progress(outcomes.len(), total);
     let threads = config.threads.max(1);
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
