@@ -34,7 +34,8 @@ use crate::fit::FitInformation;
 use crate::graph::{EdgeSigma, PoseGraph};
 use crate::poses::rigid::{from_parts, rotation, translation};
 use decide::decide;
-use nalgebra::{Matrix3, Matrix6, Vector3};
+use nalgebra::allocator::Allocator;
+use nalgebra::{DefaultAllocator, DimName, DimSub, Matrix3, Matrix6, OMatrix, Vector3, U1};
 use refine::refine;
 use reseed::reseed;
 
@@ -102,47 +103,43 @@ impl EdgeInformation {
     }
 }
 
+/// `f` applied to the eigenvalues of a symmetric D x D matrix:
+/// V diag(f(lambda, largest lambda)) V^T.
+fn spectral<D>(m: &OMatrix<f64, D, D>, f: impl Fn(f64, f64) -> f64) -> OMatrix<f64, D, D>
+where
+    D: DimName + DimSub<U1>,
+    DefaultAllocator: Allocator<D, D> + Allocator<D> + Allocator<<D as DimSub<U1>>::Output>,
+{
+    let eig = m.clone().symmetric_eigen();
+    let max = eig.eigenvalues.max();
+    let weights = OMatrix::<f64, D, D>::from_diagonal(&eig.eigenvalues.map(|l| f(l, max)));
+    &eig.eigenvectors * weights * eig.eigenvectors.transpose()
+}
+
+/// 1 / lambda above a relative cutoff of 1e-12, else 0: the pseudo-inverse.
+fn inverted(lambda: f64, max: f64) -> f64 {
+    if max > 0.0 && lambda > 1e-12 * max {
+        1.0 / lambda
+    } else {
+        0.0
+    }
+}
+
 /// The symmetric part of `m` with its negative eigenvalues set to zero (the
 /// Schur complements of an ill-conditioned information can come out a
 /// rounding error below zero, which [`EdgeInformation::is_valid`] refuses).
 fn positive_part(m: &Matrix3<f64>) -> Matrix3<f64> {
-    let eig = (0.5 * (m + m.transpose())).symmetric_eigen();
-    let mut out = Matrix3::zeros();
-    for k in 0..3 {
-        if eig.eigenvalues[k] > 0.0 {
-            let v = eig.eigenvectors.column(k);
-            out += v * v.transpose() * eig.eigenvalues[k];
-        }
-    }
-    out
+    spectral(&(0.5 * (m + m.transpose())), |l, _| l.max(0.0))
 }
 
 /// Pseudo-inverse of a symmetric positive semi-definite 6x6 (relative cutoff 1e-12).
 fn pseudo_inverse6(c: &Matrix6<f64>) -> Matrix6<f64> {
-    let eig = c.symmetric_eigen();
-    let max = eig.eigenvalues.max();
-    let mut out = Matrix6::zeros();
-    for k in 0..6 {
-        if max > 0.0 && eig.eigenvalues[k] > 1e-12 * max {
-            let v = eig.eigenvectors.column(k);
-            out += v * v.transpose() / eig.eigenvalues[k];
-        }
-    }
-    out
+    spectral(c, inverted)
 }
 
 /// Pseudo-inverse of a symmetric positive semi-definite 3x3 (relative cutoff 1e-12).
 fn block_inverse(c: &Matrix3<f64>) -> Matrix3<f64> {
-    let eig = c.symmetric_eigen();
-    let max = eig.eigenvalues.max();
-    let mut out = Matrix3::zeros();
-    for k in 0..3 {
-        if max > 0.0 && eig.eigenvalues[k] > 1e-12 * max {
-            let v = eig.eigenvectors.column(k);
-            out += v * v.transpose() / eig.eigenvalues[k];
-        }
-    }
-    out
+    spectral(c, inverted)
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
