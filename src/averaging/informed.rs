@@ -424,6 +424,9 @@ fn effective_information(
         .collect()
 }
 
+/// Most ratio of a scalar-start weight to the median (either way).
+const SCALAR_WEIGHT_SPAN: f64 = 100.0;
+
 /// The graph with scalar weights 1 / (mean variance), variance_k = 1 / Omega_kk
 /// (an axis an edge does not see makes the whole edge weak: a scalar cannot say
 /// "x only"), and per-axis sigmas 1 / sqrt(Omega_kk).
@@ -438,10 +441,31 @@ fn scalar_graph(graph: &PoseGraph, omegas: &[Matrix6<f64>]) -> PoseGraph {
             .max(f64::MIN_POSITIVE)
     };
     let (mr, mt) = (mean(0), mean(3));
+    // The weights only start the refinement: kept within SCALAR_WEIGHT_SPAN of their
+    // median, so that a few stiff edges (10^4 x the median on a grid of 32 m tiles) and
+    // floored ones do not make its solves crawl.
+    let median = |at: usize, scale: f64| {
+        let mut w: Vec<f64> = omegas
+            .iter()
+            .map(|o| weight(o, at) / scale)
+            .filter(|&w| w > 0.0)
+            .collect();
+        w.sort_by(f64::total_cmp);
+        w.get(w.len() / 2).copied().unwrap_or(1.0)
+    };
+    let (qr, qt) = (median(0, mr), median(3, mt));
+    // (an edge of weight 0 stays out)
+    let squeeze = |w: f64, q: f64| {
+        if w > 0.0 {
+            w.clamp(q / SCALAR_WEIGHT_SPAN, q * SCALAR_WEIGHT_SPAN)
+        } else {
+            0.0
+        }
+    };
     let mut out = graph.clone();
     for (e, o) in out.edges.iter_mut().zip(omegas) {
-        e.weight = weight(o, 0) / mr;
-        e.translation_weight = weight(o, 3) / mt;
+        e.weight = squeeze(weight(o, 0) / mr, qr);
+        e.translation_weight = squeeze(weight(o, 3) / mt, qt);
         let sd = |k: usize| 1.0 / o[(k, k)].max(f64::MIN_POSITIVE).sqrt();
         e.sigma = Some(EdgeSigma::new(
             Vector3::new(sd(0), sd(1), sd(2)),

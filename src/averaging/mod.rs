@@ -33,8 +33,8 @@ pub use informed::{
 };
 pub use robust::edge_residuals;
 
-use crate::graph::{Components, GraphError, PoseGraph};
-use crate::poses::rigid::from_parts;
+use crate::graph::{chain_poses, max_spanning_forest, Components, GraphError, PoseGraph};
+use crate::poses::rigid::{from_parts, rotation};
 use cg::CgTolerance;
 use laplacian::Laplacian;
 use multilevel::Multilevel;
@@ -194,8 +194,14 @@ pub fn average(
             .collect(),
     };
     let mut solver = Solver::new(graph, &components, options);
-    // Identity start: DSM rotations are tiny, and the spectral solver is global anyway.
-    let mut rotations = vec![Matrix3::identity(); graph.n];
+    // Start from the rotations chained along a maximum-weight spanning forest: the
+    // spectral solver is global on a well-connected graph, and on a nearly tree-like
+    // one (where it cannot improve much) its cost guard keeps this start.
+    let tree = max_spanning_forest(graph, |e| e.weight);
+    let mut rotations: Vec<Matrix3<f64>> = match chain_poses(graph, &tree, 0) {
+        Ok(poses) => poses.iter().map(rotation).collect(),
+        Err(_) => vec![Matrix3::identity(); graph.n],
+    };
     let mut translations = vec![Vector3::zeros(); graph.n];
     solver.solve(&weights, &mut rotations, &mut translations);
     let (mut dropped, mut downweighted) = (Vec::new(), Vec::new());
