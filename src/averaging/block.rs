@@ -8,6 +8,7 @@
 //! approximation when they are not. Memory: about 180 bytes per edge.
 
 use super::cg::StepTolerance;
+use super::direct::{solve_within_budget, BlockMatrix};
 use super::laplacian::Laplacian;
 use super::multilevel::Multilevel;
 use nalgebra::{Matrix3, Vector3};
@@ -79,6 +80,41 @@ impl BlockSystem {
             })
             .collect();
         Multilevel::new(Laplacian::new(self.n, edges), true)
+    }
+
+    /// Solves H x = rhs to `tolerance`: directly when the graph allows
+    /// ([`solve_within_budget`]: 0 iterations), else by CG from `start` with
+    /// the multigrid preconditioner.
+    pub fn solve_auto(
+        &self,
+        rhs: &[Vector3<f64>],
+        start: Option<&[Vector3<f64>]>,
+        tolerance: StepTolerance,
+    ) -> (Vec<Vector3<f64>>, BlockReport) {
+        let mut diagonal = vec![Matrix3::identity() * self.prior; self.n];
+        for e in &self.edges {
+            diagonal[e.i] += e.b.transpose() * e.omega * e.b;
+            diagonal[e.j] += e.omega;
+        }
+        // r = r0 + x_j - B x_i: H_ij = -B^T Omega.
+        let off = self
+            .edges
+            .iter()
+            .map(|e| (e.i, e.j, -(e.b.transpose() * e.omega)));
+        let apply = |p: &[Vector3<f64>], out: &mut [Vector3<f64>]| self.apply(p, out);
+        let h = BlockMatrix {
+            diagonal,
+            off,
+            apply: &apply,
+        };
+        if let Some(x) = solve_within_budget(h, rhs, tolerance) {
+            let report = BlockReport {
+                iterations: 0,
+                converged: true,
+            };
+            return (x, report);
+        }
+        self.solve(&self.preconditioner(), rhs, start, tolerance)
     }
 
     /// Solves H x = rhs from `start` (zero if None) to `tolerance`.

@@ -30,6 +30,7 @@ use banded::{reverse_cuthill_mckee, Banded};
 pub(crate) use covariance::joint_node_sigmas;
 
 use super::cg::StepTolerance;
+use super::direct::{solve_within_budget, BlockMatrix};
 use super::robust::rotation_vector;
 use crate::geo::rigid::rotation_from_axis_angle;
 use crate::graph::PoseGraph;
@@ -79,6 +80,10 @@ const AGGREGATES_PER_SQRT_NODE: f64 = 4.0;
 fn aggregate_count(n: usize) -> usize {
     let cap = MAX_AGGREGATES.max((AGGREGATES_PER_SQRT_NODE * (n as f64).sqrt()) as usize);
     (n / MIN_AGGREGATE_NODES).min(cap)
+}
+
+fn dot(a: &[Vector6<f64>], b: &[Vector6<f64>]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x.dot(y)).sum::<f64>()
 }
 
 /// What the Gauss-Newton steps did.
@@ -291,14 +296,19 @@ impl JointSystem {
         out
     }
 
-    /// Each node's 6x6 diagonal block of H, inverted (pseudo-inverse when singular).
-    fn block_jacobi(&self) -> Vec<Matrix6<f64>> {
+    /// Each node's 6x6 diagonal block of H.
+    fn diagonal_blocks(&self) -> Vec<Matrix6<f64>> {
         let mut blocks = vec![Matrix6::from_diagonal(&self.prior_of()); self.n];
         for e in &self.edges {
             blocks[e.i] += e.a_i.transpose() * e.omega * e.a_i;
             blocks[e.j] += e.a_j.transpose() * e.omega * e.a_j;
         }
         blocks
+    }
+
+    /// Each node's 6x6 diagonal block of H, inverted (identity when singular).
+    fn block_jacobi(&self) -> Vec<Matrix6<f64>> {
+        self.diagonal_blocks()
             .into_iter()
             .map(|b| {
                 b.try_inverse()
@@ -379,16 +389,47 @@ impl JointSystem {
         })
     }
 
-    /// Solves H x = rhs from zero to `tolerance`: (x, iterations, converged).
+    /// H x = rhs by a sparse block Cholesky factor when the graph allows
+    /// ([`solve_within_budget`]).
+    fn solve_direct(
+        &self,
+        rhs: &[Vector6<f64>],
+        tolerance: StepTolerance,
+    ) -> Option<Vec<Vector6<f64>>> {
+        let off = self
+            .edges
+            .iter()
+            .map(|e| (e.i, e.j, e.a_i.transpose() * e.omega * e.a_j));
+        let apply = |p: &[Vector6<f64>], out: &mut [Vector6<f64>]| self.apply(p, out);
+        let h = BlockMatrix {
+            diagonal: self.diagonal_blocks(),
+            off,
+            apply: &apply,
+        };
+        solve_within_budget(h, rhs, tolerance)
+    }
+
+    /// Solves H x = rhs from zero to `tolerance`: (x, CG iterations, converged);
+    /// directly when the graph allows ([`Self::solve_direct`]: 0 iterations).
     fn solve(
         &self,
         rhs: &[Vector6<f64>],
         tolerance: StepTolerance,
     ) -> (Vec<Vector6<f64>>, usize, bool) {
+        match self.solve_direct(rhs, tolerance) {
+            Some(x) => (x, 0, true),
+            None => self.solve_cg(rhs, tolerance),
+        }
+    }
+
+    /// Solves H x = rhs from zero to `tolerance` by preconditioned CG (block
+    /// Jacobi plus the coarse space): (x, iterations, converged).
+    fn solve_cg(
+        &self,
+        rhs: &[Vector6<f64>],
+        tolerance: StepTolerance,
+    ) -> (Vec<Vector6<f64>>, usize, bool) {
         let n = self.n;
-        let dot = |a: &[Vector6<f64>], b: &[Vector6<f64>]| {
-            a.iter().zip(b).map(|(x, y)| x.dot(y)).sum::<f64>()
-        };
         let mut x = vec![Vector6::zeros(); n];
         let mut r = rhs.to_vec();
         let b_norm = dot(&r, &r).sqrt();
@@ -451,3 +492,6 @@ impl JointSystem {
         (x, tolerance.max_iter, false)
     }
 }
+
+#[cfg(test)]
+mod tests;

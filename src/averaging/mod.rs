@@ -16,6 +16,7 @@ mod block;
 mod cg;
 mod consistency;
 mod covariance;
+mod direct;
 mod gauge;
 mod informed;
 mod joint;

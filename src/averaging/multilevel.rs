@@ -14,9 +14,10 @@
 //! Memory: the coarse levels add about a third of the finest level.
 
 use super::cg::Lanes;
+use super::direct::{Budget, Factor, Symbolic, BUDGET_PER_NODE_AND_LINK};
 use super::laplacian::{aggregate_edges, pair_match, Laplacian};
 use crate::graph::UnionFind;
-use nalgebra::{Cholesky, DMatrix, Dyn};
+use nalgebra::{Cholesky, DMatrix, Dyn, Matrix1};
 
 /// Levels stop coarsening at this many nodes (dense Cholesky of that size is cheap).
 const COARSEST_NODES: usize = 400;
@@ -63,6 +64,7 @@ impl Multilevel {
         if !coarsen {
             let coarsest = Coarsest {
                 factor: None,
+                sparse: None,
                 component_of: Vec::new(),
                 component_size: Vec::new(),
             };
@@ -72,6 +74,19 @@ impl Multilevel {
                     aggregate_of: Vec::new(),
                 }],
                 coarsest,
+            };
+        }
+        // A graph whose sparse factor is cheap (nearly tree-like: coarsening stalls
+        // there) is solved exactly instead: then CG needs an iteration or two.
+        let exact = Coarsest::new(&finest, false);
+        if exact.sparse.is_some() {
+            tracing::debug!(nodes = finest.n, "multigrid replaced by a sparse factor");
+            return Multilevel {
+                levels: vec![Level {
+                    laplacian: finest,
+                    aggregate_of: Vec::new(),
+                }],
+                coarsest: exact,
             };
         }
         let mut levels = Vec::new();
@@ -94,7 +109,7 @@ impl Multilevel {
             });
             current = coarse;
         }
-        let coarsest = Coarsest::new(&current);
+        let coarsest = Coarsest::new(&current, true);
         levels.push(Level {
             laplacian: current,
             aggregate_of: Vec::new(),
@@ -188,16 +203,19 @@ impl Multilevel {
     }
 }
 
-/// Dense solve on the coarsest level: Pi (L + delta I)^-1 Pi, Pi removing each
-/// component's mean (L is singular with the constants of each component).
+/// Exact solve on the coarsest level: Pi (L + delta I)^-1 Pi, Pi removing each
+/// component's mean (L is singular with the constants of each component), by a
+/// sparse factor when its fill is within the direct budget ([`super::direct`]),
+/// else densely up to 4 x [`COARSEST_NODES`] (when `dense` allows).
 struct Coarsest {
     factor: Option<Cholesky<f64, Dyn>>,
+    sparse: Option<Factor<1>>,
     component_of: Vec<usize>,
     component_size: Vec<f64>,
 }
 
 impl Coarsest {
-    fn new(laplacian: &Laplacian) -> Self {
+    fn new(laplacian: &Laplacian, dense: bool) -> Self {
         let n = laplacian.n;
         let mut sets = UnionFind::new(n);
         laplacian.edges.iter().for_each(|&(i, j, _)| {
@@ -214,8 +232,27 @@ impl Coarsest {
             component_of[k] = component_of[root];
             component_size[component_of[k]] += 1.0;
         }
-        let factor = (n <= 4 * COARSEST_NODES).then(|| {
-            let max_degree = laplacian.degree.iter().copied().fold(0.0, f64::max);
+        let max_degree = laplacian.degree.iter().copied().fold(0.0, f64::max);
+        let delta = 1e-10 * max_degree.max(f64::MIN_POSITIVE);
+        let (blocks, updates) = BUDGET_PER_NODE_AND_LINK;
+        let budget = Budget::relative(n, laplacian.edges.len(), blocks, updates);
+        let links = laplacian
+            .edges
+            .iter()
+            .map(|&(i, j, _)| (i as usize, j as usize));
+        let sparse = Symbolic::analyse(n, links, budget).and_then(|symbolic| {
+            let diagonal: Vec<Matrix1<f64>> = laplacian
+                .degree
+                .iter()
+                .map(|d| Matrix1::new(d + delta))
+                .collect();
+            let off = laplacian
+                .edges
+                .iter()
+                .map(|&(i, j, w)| (i as usize, j as usize, Matrix1::new(-w)));
+            symbolic.factor(&diagonal, off)
+        });
+        let factor = (sparse.is_none() && dense && n <= 4 * COARSEST_NODES).then(|| {
             let mut dense = DMatrix::from_diagonal(&nalgebra::DVector::from_iterator(
                 n,
                 laplacian
@@ -231,8 +268,29 @@ impl Coarsest {
         });
         Coarsest {
             factor: factor.flatten(),
+            sparse,
             component_of,
             component_size,
+        }
+    }
+
+    /// `remove_means` of node-major lanes (node k at k * width ..).
+    fn remove_lane_means(&self, x: &mut [f64], width: usize) {
+        let mut sums = vec![0.0; self.component_size.len() * width];
+        for (k, v) in x.chunks_exact(width).enumerate() {
+            let at = self.component_of[k] * width;
+            sums[at..at + width]
+                .iter_mut()
+                .zip(v)
+                .for_each(|(s, v)| *s += v);
+        }
+        for (k, v) in x.chunks_exact_mut(width).enumerate() {
+            let comp = self.component_of[k];
+            let size = self.component_size[comp];
+            let at = comp * width;
+            v.iter_mut()
+                .zip(&sums[at..at + width])
+                .for_each(|(v, s)| *v -= s / size);
         }
     }
 
@@ -252,6 +310,19 @@ impl Coarsest {
     }
 
     fn solve<B: Lanes>(&self, laplacian: &Laplacian, input: &dyn Fn(usize) -> B, z: &mut [B]) {
+        if let Some(sparse) = &self.sparse {
+            let width = B::zero().entries().len();
+            let mut x: Vec<f64> = (0..z.len())
+                .flat_map(|k| input(k).entries().to_vec())
+                .collect();
+            self.remove_lane_means(&mut x, width);
+            sparse.solve_lanes(&mut x, width);
+            self.remove_lane_means(&mut x, width);
+            for (zk, v) in z.iter_mut().zip(x.chunks_exact(width)) {
+                zk.entries_mut().copy_from_slice(v);
+            }
+            return;
+        }
         let Some(factor) = &self.factor else {
             // Too large to factor (coarsening stalled): one Jacobi step.
             for (k, zk) in z.iter_mut().enumerate() {
@@ -340,6 +411,22 @@ mod tests {
             multigrid * 5 < jacobi,
             "multigrid {multigrid} vs jacobi {jacobi}"
         );
+    }
+
+    #[test]
+    fn a_nearly_tree_like_graph_is_solved_exactly_by_its_sparse_factor() {
+        // A random tree with a few chords (where pairwise matching stalls): one
+        // exact level, and CG is done in an iteration or two.
+        let n: u32 = 3000;
+        let mut edges: Vec<(u32, u32, f64)> = (1..n)
+            .map(|k| ((k * 7919 + 13) % k, k, 0.5 + (k % 7) as f64))
+            .collect();
+        edges.extend([(5, 900, 2.0), (17, 1500, 1.0), (2100, 2900, 3.0)]);
+        let multilevel = Multilevel::new(Laplacian::new(n as usize, edges), true);
+        assert_eq!(multilevel.levels.len(), 1);
+        assert!(multilevel.coarsest.sparse.is_some());
+        let (iterations, _) = solve(&multilevel);
+        assert!(iterations <= 2, "{iterations}");
     }
 
     #[test]

@@ -107,7 +107,7 @@ fn solve_blocks(
         edges,
     };
     let rhs = system.gather(|_, e| -(e.omega * e.r0));
-    system.solve(&system.preconditioner(), &rhs, start, tolerance)
+    system.solve_auto(&rhs, start, tolerance)
 }
 
 /// 1e-9 of the mean information: fixes the free motions without biasing the rest.

@@ -27,6 +27,10 @@ pub struct InformedGridSpec {
     pub unreliable_fraction: f64,
     /// Fraction of gross outliers.
     pub outlier_fraction: f64,
+    /// Fraction of the 8-neighbour pairs that become edges (1: all). Below one
+    /// the graph percolates: about 0.36 gives the sparse, nearly tree-like graph
+    /// of a grid of 32 m tiles, where most pairs come out degenerate.
+    pub keep_fraction: f64,
     pub seed: u64,
 }
 
@@ -39,6 +43,7 @@ impl InformedGridSpec {
             flat_fraction: 0.1,
             unreliable_fraction: 0.03,
             outlier_fraction: 0.03,
+            keep_fraction: 1.0,
             seed,
         }
     }
@@ -98,7 +103,13 @@ pub fn informed_grid(spec: &InformedGridSpec) -> InformedGrid {
             from_parts(&r, &normal3(&mut rng, 2.0))
         })
         .collect();
-    let pairs = grid_pairs(width);
+    // Which pairs are kept comes from a stream of its own, so the edges a grid
+    // keeps are drawn exactly as in the full grid.
+    let mut keep = SplitMix64::new(crate::rng::derive_seed(spec.seed, 0x6b65_6570));
+    let pairs: Vec<(usize, usize)> = grid_pairs(width)
+        .into_iter()
+        .filter(|_| spec.keep_fraction >= 1.0 || keep.next_f64() < spec.keep_fraction)
+        .collect();
     let mut out = InformedGrid {
         graph: PoseGraph {
             n,
