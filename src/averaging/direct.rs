@@ -29,14 +29,29 @@ impl Budget {
     /// A factor within `blocks` and `updates` times the size of the system (nodes
     /// plus links): the memory of the system itself, and the work of that many
     /// preconditioned CG iterations, give or take.
+    /// No factor at all (too many links per node to be worth analysing) when
+    /// `links` exceeds [`MAX_LINKS_PER_NODE`] x `nodes`.
     pub fn relative(nodes: usize, links: usize, blocks: usize, updates: usize) -> Self {
         let size = nodes + links;
+        if links as f64 > MAX_LINKS_PER_NODE * nodes as f64 {
+            return Budget {
+                max_blocks: 0,
+                max_updates: 0,
+            };
+        }
         Budget {
             max_blocks: blocks.saturating_mul(size),
             max_updates: updates.saturating_mul(size),
         }
     }
 }
+
+/// Graphs with more links per node than this are not analysed: a grid of tiles
+/// with all its 8-neighbour pairs has about 4, and the analysis of a large one
+/// would run long before it exceeded the budget (2 x 10^6 nodes: minutes). The
+/// sparse graphs the factor is for have 1 to 2 (a percolating grid of small
+/// tiles: 1.4).
+pub(crate) const MAX_LINKS_PER_NODE: f64 = 2.5;
 
 /// The elimination order and the structure of the factor.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -91,6 +106,9 @@ impl Symbolic {
         links: impl IntoIterator<Item = (usize, usize)>,
         budget: Budget,
     ) -> Option<Self> {
+        if budget.max_blocks == 0 && n > 0 {
+            return None;
+        }
         let mut adjacency: Vec<Vec<usize>> = vec![Vec::new(); n];
         for (i, j) in links {
             if i != j {
@@ -108,7 +126,9 @@ impl Symbolic {
         let mut position = vec![usize::MAX; n];
         let mut order = Vec::with_capacity(n);
         let mut columns = Vec::with_capacity(n);
-        let (mut blocks, mut updates) = (0usize, 0usize);
+        // Work of the analysis itself (merged adjacency entries): bounded by the
+        // update budget too, so a graph over budget is given up quickly.
+        let (mut blocks, mut updates, mut work) = (0usize, 0usize, 0usize);
         while let Some(Reverse((degree, k))) = heap.pop() {
             // Stale entries (the degree changed since) are skipped: every change
             // pushed the current one.
@@ -124,8 +144,23 @@ impl Symbolic {
             if blocks > budget.max_blocks || updates > budget.max_updates {
                 return None;
             }
+            // A leaf only leaves its neighbour's list (a hub of many leaves would
+            // otherwise cost its degree per leaf).
+            if let [a] = neighbours[..] {
+                if let Ok(at) = adjacency[a].binary_search(&k) {
+                    adjacency[a].remove(at);
+                }
+                work += 1;
+                heap.push(Reverse((adjacency[a].len(), a)));
+                columns.push(neighbours);
+                continue;
+            }
             // The neighbours of k become a clique.
             for &a in &neighbours {
+                work += adjacency[a].len() + neighbours.len();
+                if work > budget.max_updates {
+                    return None;
+                }
                 adjacency[a] = merge(&adjacency[a], &neighbours, a, k);
                 heap.push(Reverse((adjacency[a].len(), a)));
             }
@@ -296,9 +331,11 @@ impl<const D: usize> Factor<D> {
 
 /// The off-diagonal blocks a direct solve may keep, and the block updates it may
 /// spend, per node and link of the system ([`Budget::relative`]). A nearly
-/// tree-like graph needs about one of each; a well-connected grid of 10^4 tiles
-/// many more, and there CG with a multilevel preconditioner is cheaper.
-pub(crate) const BUDGET_PER_NODE_AND_LINK: (usize, usize) = (4, 64);
+/// tree-like graph needs few (a percolating 100 x 100 grid with 36 % of its
+/// pairs: 1.5 and 8); a well-connected grid of 10^4 tiles many more (8 blocks),
+/// and there CG with a multilevel preconditioner is cheaper (measured:
+/// tools/bench/informed.rs).
+pub(crate) const BUDGET_PER_NODE_AND_LINK: (usize, usize) = (3, 32);
 
 /// A system H x = rhs over `n` nodes for [`solve_within_budget`]: its block
 /// diagonal, its off-diagonal blocks H_ij of linked nodes, and H applied to a

@@ -6,11 +6,7 @@ use nalgebra::{DMatrix, DVector, Matrix3, Vector3};
 type OffBlock = (usize, usize, Matrix3<f64>);
 
 /// A random SPD block system on the given links: diagonal blocks dominate.
-fn system(
-    n: usize,
-    links: &[(usize, usize)],
-    seed: u64,
-) -> (Vec<Matrix3<f64>>, Vec<OffBlock>) {
+fn system(n: usize, links: &[(usize, usize)], seed: u64) -> (Vec<Matrix3<f64>>, Vec<OffBlock>) {
     let mut rng = SplitMix64::new(seed);
     let mut diagonal = vec![Matrix3::identity() * 1e-3; n];
     let mut off = Vec::new();
@@ -26,11 +22,7 @@ fn system(
     (diagonal, off)
 }
 
-fn dense(
-    n: usize,
-    diagonal: &[Matrix3<f64>],
-    off: &[OffBlock],
-) -> DMatrix<f64> {
+fn dense(n: usize, diagonal: &[Matrix3<f64>], off: &[OffBlock]) -> DMatrix<f64> {
     let mut h = DMatrix::zeros(3 * n, 3 * n);
     for (k, d) in diagonal.iter().enumerate() {
         let mut v = h.view_mut((3 * k, 3 * k), (3, 3));
@@ -165,4 +157,14 @@ fn an_indefinite_matrix_gives_no_factor() {
 fn merge_is_a_sorted_union_without_the_skipped() {
     assert_eq!(merge(&[1, 3, 5], &[2, 3, 6], 5, 2), vec![1, 3, 6]);
     assert_eq!(merge(&[], &[4], 0, 0), vec![4]);
+}
+
+#[test]
+fn graphs_with_many_links_per_node_are_not_analysed() {
+    // 10 nodes, 30 links: over 2.5 links per node, whatever the budget factors.
+    let budget = Budget::relative(10, 30, 1000, 1000);
+    assert_eq!(budget.max_blocks, 0);
+    let links = (0..30).map(|k| (k % 10, (k * 3 + 1) % 10));
+    assert!(Symbolic::analyse(10, links, budget).is_none());
+    assert!(Budget::relative(10, 20, 3, 32).max_blocks > 0);
 }
