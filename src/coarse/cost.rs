@@ -2,21 +2,12 @@
 //! against the reference, bilinearly interpolated at the shifted positions.
 //!
 //! For a trial horizontal shift (dx, dy), every moving sample (x, y, h) gives
-//! dh = H_ref(x + dx, y + dy) - h. The vertical offset and relative tilt of
-//! that shift are the robust plane through dh ([`super::tilt`]), its cost a
-//! robust spread of dh around that plane (RMS of the residuals clipped at 3
-//! NMAD, NMAD = 1.4826 median |dh - plane|): it does not depend on the
-//! vertical offset or a small tilt at all, and half the overlap may be
+//! dh = H_ref(x + dx, y + dy) - h. The vertical offset of that shift is
+//! median(dh), its cost a robust spread of dh around that median (RMS of the
+//! residuals clipped at 3 NMAD, NMAD = 1.4826 median |dh - median dh|): it
+//! does not depend on the vertical offset at all, and half the overlap may be
 //! changed, water or outliers before it breaks.
-//!
-//! Where the residuals are clipped is a [`Clip`]: at each shift's own spread
-//! (the scan's first pass), or at one height common to every shift compared.
-//! Only costs at a common clip compare: on noise-free flat ground the own
-//! NMAD is about 0 at every shift, and the shift whose spread happens to be
-//! smallest wins whatever its fit.
 
-use super::tilt::fit_plane;
-pub use super::tilt::Residual;
 use crate::grid::Grid;
 
 /// A valid pixel of the moving DSM: centre in CRS metres, height in metres.
@@ -32,45 +23,15 @@ pub struct Sample {
 pub struct ShiftScore {
     /// Samples with a valid reference height under the shifted position.
     pub support: usize,
-    /// H_ref - h at the samples' centre, from the plane through dh: the
-    /// vertical offset at this shift (ref minus moving).
+    /// median(H_ref - h): the vertical offset at this shift (ref minus moving).
     pub dz_m: f64,
-    /// NMAD of dh about that plane: the spread of the inliers.
+    /// NMAD of dh: the spread of the inliers.
     pub nmad_m: f64,
-    /// The cost: RMS of dh - median(dh), each clipped at the [`Clip`] (a
-    /// truncated quadratic: unlike the NMAD alone it grows with the share of
-    /// pixels pushed off their surface, such as walls at a one-pixel error).
-    /// Infinite when the support is too small.
+    /// The cost: RMS of dh - median(dh), each clipped at 3 NMAD (a truncated
+    /// quadratic: unlike the NMAD alone it grows with the share of pixels
+    /// pushed off their surface, such as walls at a one-pixel error). Infinite
+    /// when the support is too small.
     pub cost_m: f64,
-}
-
-/// Smallest clip height, metres (noise-free data has an NMAD of about 0).
-pub const MIN_CLIP_M: f64 = 1e-3;
-
-/// Where a cost clips the residuals |dh - median(dh)|.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Clip {
-    /// At 3 NMAD of the shift's own residuals (at least [`MIN_CLIP_M`]):
-    /// finds the minima of a scan, but two shifts' costs do not compare.
-    OwnSpread,
-    /// At this height (metres), the same for every shift compared.
-    Common(f64),
-}
-
-impl Clip {
-    /// The common clip of a set of shifts whose best spread is `nmad_m`:
-    /// 3 NMAD of the best-fitting shift, at least [`MIN_CLIP_M`].
-    pub fn at_spread(nmad_m: f64) -> Clip {
-        Clip::Common((3.0 * nmad_m).max(MIN_CLIP_M))
-    }
-
-    /// The clip height for residuals of spread `nmad_m`.
-    pub fn height_m(self, nmad_m: f64) -> f64 {
-        match self {
-            Clip::OwnSpread => (3.0 * nmad_m).max(MIN_CLIP_M),
-            Clip::Common(clip_m) => clip_m,
-        }
-    }
 }
 
 impl ShiftScore {
@@ -110,62 +71,45 @@ pub fn median_in_place(values: &mut [f64]) -> f64 {
     *m
 }
 
-/// Buffers reused between the scores of many shifts.
-#[derive(Clone, Debug, Default)]
-pub struct Scratch {
-    pub points: Vec<Residual>,
-    pub values: Vec<f64>,
-}
-
-/// Scores the shift (dx, dy) in metres at `clip`. Shifts with fewer than
-/// `min_support` matched samples cost infinity.
+/// Scores the shift (dx, dy) in metres; `scratch` is reused between calls.
+/// Shifts with fewer than `min_support` matched samples cost infinity.
 pub fn score_shift<G: Grid + ?Sized>(
     reference: &mut G,
     samples: &[Sample],
     shift_xy_m: [f64; 2],
     min_support: usize,
-    clip: Clip,
-    scratch: &mut Scratch,
+    scratch: &mut Vec<f64>,
 ) -> ShiftScore {
-    scratch.points.clear();
+    scratch.clear();
     for s in samples {
         let h = bilinear(reference, s.x_m + shift_xy_m[0], s.y_m + shift_xy_m[1]);
         if h.is_finite() {
-            scratch.points.push(Residual {
-                x_m: s.x_m,
-                y_m: s.y_m,
-                dh_m: h - s.h_m,
-            });
+            scratch.push(h - s.h_m);
         }
     }
-    score_residuals(&scratch.points, min_support, clip, &mut scratch.values)
+    score_residuals(scratch, min_support)
 }
 
-/// The score of the height differences H_ref - h in `points` (all finite) at
-/// `clip`, about their plane ([`fit_plane`]): infinite cost below
-/// `min_support` of them.
-pub fn score_residuals(
-    points: &[Residual],
-    min_support: usize,
-    clip: Clip,
-    scratch: &mut Vec<f64>,
-) -> ShiftScore {
-    let support = points.len();
+/// The score of the height differences H_ref - h in `residuals` (reordered
+/// and overwritten): infinite cost below `min_support` of them.
+pub fn score_residuals(residuals: &mut [f64], min_support: usize) -> ShiftScore {
+    let support = residuals.len();
     if support < min_support.max(3) {
         return ShiftScore {
             support,
             ..ShiftScore::EMPTY
         };
     }
-    let plane = fit_plane(points, scratch);
-    scratch.clear();
-    scratch.extend(points.iter().map(|p| plane.detrended(p).abs()));
-    let nmad_m = 1.4826 * median_in_place(scratch);
-    let clip_m = clip.height_m(nmad_m);
-    let sum_sq: f64 = scratch.iter().map(|r| r.min(clip_m).powi(2)).sum();
+    let dz_m = median_in_place(residuals);
+    for d in residuals.iter_mut() {
+        *d = (*d - dz_m).abs();
+    }
+    let nmad_m = 1.4826 * median_in_place(residuals);
+    let clip_m = (3.0 * nmad_m).max(1e-3);
+    let sum_sq: f64 = residuals.iter().map(|r| r.min(clip_m).powi(2)).sum();
     ShiftScore {
         support,
-        dz_m: plane.offset_m,
+        dz_m,
         nmad_m,
         cost_m: (sum_sq / support as f64).sqrt(),
     }
@@ -242,21 +186,13 @@ mod tests {
         let b = [1010.0, 1930.0, 1080.0, 1990.0];
         let samples = sample_box(&mut moving, &b, 400);
         assert!(samples.len() > 300, "{}", samples.len());
-        let mut scratch = Scratch::default();
-        let own = Clip::OwnSpread;
-        let at_truth = score_shift(&mut reference, &samples, [-4.0, 2.0], 10, own, &mut scratch);
+        let mut scratch = Vec::new();
+        let at_truth = score_shift(&mut reference, &samples, [-4.0, 2.0], 10, &mut scratch);
         assert!(at_truth.cost_m < 1e-3, "{at_truth:?}");
         assert!((at_truth.dz_m - 150.0).abs() < 1e-3, "{at_truth:?}");
-        let off = score_shift(&mut reference, &samples, [0.0, 0.0], 10, own, &mut scratch);
+        let off = score_shift(&mut reference, &samples, [0.0, 0.0], 10, &mut scratch);
         assert!(off.cost_m > 0.2, "{off:?}");
-        let starved = score_shift(
-            &mut reference,
-            &samples,
-            [0.0, 0.0],
-            100_000,
-            own,
-            &mut scratch,
-        );
+        let starved = score_shift(&mut reference, &samples, [0.0, 0.0], 100_000, &mut scratch);
         assert_eq!(starved.cost_m, f64::INFINITY);
     }
 }

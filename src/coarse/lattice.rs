@@ -9,7 +9,7 @@
 //! (u, v) stay the same: [`LatticeSamples`] computes them once. The scores are
 //! those of `score_shift` at the same shifts (up to rounding of the last bit).
 
-use super::cost::{score_residuals, Clip, Residual, Sample, Scratch, ShiftScore};
+use super::cost::{score_residuals, Sample, ShiftScore};
 use crate::grid::{Grid, MemGrid};
 
 /// One moving sample on the window's lattice at zero shift.
@@ -21,9 +21,6 @@ struct Cell {
     /// Bilinear weights of the right column and of the bottom row.
     u: f64,
     v: f64,
-    /// The sample's position and height.
-    x_m: f64,
-    y_m: f64,
     h_m: f64,
 }
 
@@ -48,8 +45,6 @@ impl LatticeSamples {
                     row: r0 as i64,
                     u: c - c0,
                     v: r - r0,
-                    x_m: s.x_m,
-                    y_m: s.y_m,
                     h_m: s.h_m,
                 }
             })
@@ -67,16 +62,15 @@ impl LatticeSamples {
 
     /// Scores the shift of `shift_px` = (i, j) window pixels, that is
     /// (i gsd_x, j gsd_y) metres east and north (rows grow southwards);
-    /// the same score as `score_shift` at that shift and clip.
+    /// the same score as `score_shift` at that shift.
     pub fn score(
         &self,
         window: &MemGrid,
         shift_px: [i64; 2],
         min_support: usize,
-        clip: Clip,
-        scratch: &mut Scratch,
+        scratch: &mut Vec<f64>,
     ) -> ShiftScore {
-        scratch.points.clear();
+        scratch.clear();
         let (w, h) = (window.width, window.height);
         let data = &window.data;
         for cell in &self.cells {
@@ -92,14 +86,10 @@ impl LatticeSamples {
             let bottom = h01 * (1.0 - cell.u) + h11 * cell.u;
             let height = top * (1.0 - cell.v) + bottom * cell.v;
             if height.is_finite() {
-                scratch.points.push(Residual {
-                    x_m: cell.x_m,
-                    y_m: cell.y_m,
-                    dh_m: height - cell.h_m,
-                });
+                scratch.push(height - cell.h_m);
             }
         }
-        score_residuals(&scratch.points, min_support, clip, &mut scratch.values)
+        score_residuals(scratch, min_support)
     }
 }
 
@@ -134,17 +124,12 @@ mod tests {
         let (mut window, samples) = window_and_samples();
         let lattice = LatticeSamples::new(&window, &samples);
         assert_eq!(lattice.len(), samples.len());
-        let (mut a, mut b) = (Scratch::default(), Scratch::default());
+        let (mut a, mut b) = (Vec::new(), Vec::new());
         for j in -8..=8 {
             for i in -12..=12 {
-                let clip = if (i + j) % 2 == 0 {
-                    Clip::OwnSpread
-                } else {
-                    Clip::Common(0.5)
-                };
-                let fast = lattice.score(&window, [i, j], 20, clip, &mut a);
+                let fast = lattice.score(&window, [i, j], 20, &mut a);
                 let shift_m = [i as f64 * 2.0, j as f64 * 2.0];
-                let slow = score_shift(&mut window, &samples, shift_m, 20, clip, &mut b);
+                let slow = score_shift(&mut window, &samples, shift_m, 20, &mut b);
                 assert_eq!(fast.support, slow.support, "({i}, {j})");
                 if slow.cost_m.is_finite() {
                     assert!((fast.cost_m - slow.cost_m).abs() < 1e-9, "({i}, {j})");
@@ -160,13 +145,7 @@ mod tests {
     fn samples_shifted_off_the_window_have_no_support() {
         let (window, samples) = window_and_samples();
         let lattice = LatticeSamples::new(&window, &samples);
-        let far = lattice.score(
-            &window,
-            [100, 0],
-            0,
-            Clip::OwnSpread,
-            &mut Scratch::default(),
-        );
+        let far = lattice.score(&window, [100, 0], 0, &mut Vec::new());
         assert_eq!(far.support, 0);
         assert_eq!(far.cost_m, f64::INFINITY);
     }

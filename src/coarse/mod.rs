@@ -12,8 +12,7 @@
 //! 2. **Scan.** Every shift of the reference's pixel lattice within
 //!    ±`max_displacement_m` is scored by the spread of the height differences
 //!    dh = H_ref(x + dx, y + dy) - h_moving over a lattice of moving samples:
-//!    offset = median(dh), cost = RMS of dh - offset clipped at 3 NMAD of the
-//!    best-fitting shift, the same clip for all ([`cost`]). The spread does not see
+//!    offset = median(dh), cost = RMS of dh - offset clipped at 3 NMAD ([`cost`]). The spread does not see
 //!    the vertical offset, so no vertical search is needed, and it ignores up to
 //!    half the overlap being water, change or outliers. Exhaustive: a few
 //!    thousand shifts of a few thousand samples at that level, each sample's
@@ -22,24 +21,17 @@
 //!    (at most `candidates`), are each refined level by level down to
 //!    `finest_level` (±2 pixels at each level, a parabola at the last), on
 //!    samples from the candidate's own overlap.
-//! 4. **Ranking.** Refined candidates and the georeferenced position (zero
-//!    shift) are scored on the same samples of the finest level at one clip
-//!    and ranked by cost, except that the georeferenced position stays first
-//!    unless the best candidate fits better by more than two standard errors
-//!    of the paired difference ([`compare`]). `ambiguity` is the ratio of the
-//!    first cost to the next distinct one, at most 1 (near 1: a repetitive or
-//!    flat scene where the two are hard to tell apart; 0: only one candidate).
+//! 4. **Ranking.** Refined candidates are ranked by cost; `ambiguity` is the
+//!    ratio of the two best costs (near 1: a repetitive or flat scene where
+//!    the two are hard to tell apart; 0: only one candidate).
 //!
 //! Rotation is not searched (DSM rotations are hundredths of a degree); ICP
 //! takes it from the returned translation. The answer is a translation in the
 //! ICP's convention: p_ref = p_moving + `shift_m`.
 
-pub mod compare;
 pub mod cost;
 pub mod lattice;
 pub mod search;
-pub mod switch;
-pub mod tilt;
 
 use nalgebra::Vector3;
 use serde::Serialize;
@@ -98,13 +90,9 @@ pub struct CoarseEstimate {
     /// The best candidate's translation, moving -> reference.
     #[serde(serialize_with = "vector_as_array")]
     pub shift_m: Vector3<f64>,
-    /// All refined candidates, best first (module docs: the georeferenced
-    /// position first when no candidate is clearly better).
+    /// All refined candidates, best (lowest cost) first.
     pub candidates: Vec<Candidate>,
-    /// The first candidate is the georeferenced position (zero shift), kept
-    /// because no other fit better beyond the comparison's noise.
-    pub kept_georeferenced: bool,
-    /// first cost / second cost, in [0, 1]; 0 with a single candidate.
+    /// best cost / second-best cost, in [0, 1]; 0 with a single candidate.
     pub ambiguity: f64,
     /// The overview level of the global scan.
     pub level: usize,
@@ -159,7 +147,7 @@ pub fn estimate<R: Pyramid, M: Pyramid>(
     let (peaks, scanned) = global_scan(reference, moving, level, &reach, config)?;
     let mut n_trials = scanned;
     // Refine every candidate down to `finest`.
-    let mut refined: Vec<Trial> = Vec::with_capacity(peaks.len());
+    let mut refined = Vec::with_capacity(peaks.len());
     for peak in peaks {
         let (t, n) = refine_down(
             reference, moving, peak, level, finest, &ref_box, &mov_box, config,
@@ -167,35 +155,16 @@ pub fn estimate<R: Pyramid, M: Pyramid>(
         n_trials += n;
         refined.push(t);
     }
-    let sw = switch::get();
-    let compared = if sw.clip || sw.keep {
-        compare_at(
-            reference, moving, finest, &ref_box, &mov_box, &refined, config,
-        )?
-    } else {
-        None
-    };
-    let (ranked, kept_georeferenced) = match compared {
-        Some(r) => {
-            tracing::debug!(kept_georeferenced = r.kept_georeferenced, gain = ?r.gain, "coarse candidates compared");
-            (r.trials, r.kept_georeferenced)
-        }
-        None => {
-            refined.sort_by(|a, b| a.score.cost_m.total_cmp(&b.score.cost_m));
-            (refined, false)
-        }
-    };
-    let candidates = rank(ranked, pixel_m[finest]);
+    let candidates = rank(refined, pixel_m[finest]);
     let best = *candidates.first().ok_or(CoarseError::NoMatch(d_m))?;
     let ambiguity = match candidates.get(1) {
-        Some(second) if second.cost_m > 0.0 => (best.cost_m / second.cost_m).min(1.0),
+        Some(second) if second.cost_m > 0.0 => best.cost_m / second.cost_m,
         Some(_) => 1.0,
         None => 0.0,
     };
     Ok(CoarseEstimate {
         shift_m: Vector3::from(best.shift_m),
         candidates,
-        kept_georeferenced,
         ambiguity,
         level,
         refined_level: finest,
@@ -203,46 +172,12 @@ pub fn estimate<R: Pyramid, M: Pyramid>(
     })
 }
 
-/// The georeferenced position and the refined candidates compared on the
-/// moving samples of the nominal overlap (a central window of it) at level
-/// `finest` ([`compare::rank_against_georeferenced`]).
-#[allow(clippy::too_many_arguments)]
-fn compare_at<R: Pyramid, M: Pyramid>(
-    reference: &R,
-    moving: &M,
-    finest: usize,
-    ref_box: &[f64; 4],
-    mov_box: &[f64; 4],
-    refined: &[Trial],
-    config: &CoarseConfig,
-) -> Result<Option<compare::Ranking>, CoarseError> {
-    let read = CoarseError::Read;
-    let Some(overlap) = intersect(mov_box, ref_box) else {
-        return Ok(None);
-    };
-    let mut mov = moving.open_level(finest).map_err(read)?;
-    let mut refg = reference.open_level(finest).map_err(read)?;
-    let gt = refg.geotransform();
-    let side_m = config.refine_window_px * gt.gsd_x().max(gt.gsd_y());
-    let samples = sample_box(&mut mov, &central(&overlap, side_m), config.samples);
-    if let Some(e) = mov.take_error() {
-        return Err(read(e));
-    }
-    let sw = switch::get();
-    let ranking =
-        compare::rank_against_georeferenced(&mut refg, &samples, refined, sw.clip, sw.keep);
-    if let Some(e) = refg.take_error() {
-        return Err(read(e));
-    }
-    Ok(ranking)
-}
-
-/// Ranked trials as candidates, in their order, without duplicates (one
-/// within 1.5 steps of the finest level of an earlier one) or trials that
-/// lost their support.
-fn rank(ranked: Vec<Trial>, final_step: f64) -> Vec<Candidate> {
+/// Refined trials ranked by cost, without duplicates (two within 1.5 steps of
+/// the finest level are one candidate) or trials that lost their support.
+fn rank(mut refined: Vec<Trial>, final_step: f64) -> Vec<Candidate> {
+    refined.sort_by(|a, b| a.score.cost_m.total_cmp(&b.score.cost_m));
     let mut candidates: Vec<Candidate> = Vec::new();
-    for t in ranked.iter().filter(|t| t.score.cost_m.is_finite()) {
+    for t in refined.iter().filter(|t| t.score.cost_m.is_finite()) {
         let duplicate = candidates.iter().any(|c| {
             (c.shift_m[0] - t.shift_xy_m[0]).abs() < 1.5 * final_step
                 && (c.shift_m[1] - t.shift_xy_m[1]).abs() < 1.5 * final_step
@@ -289,15 +224,8 @@ fn global_scan<R: Pyramid, M: Pyramid>(
     if let Some(e) = ref_level.take_error() {
         return Err(read(e));
     }
-    let mut scratch = cost::Scratch::default();
-    let at_zero = cost::score_shift(
-        &mut ref_win,
-        &samples,
-        [0.0, 0.0],
-        0,
-        cost::Clip::OwnSpread,
-        &mut scratch,
-    );
+    let mut scratch = Vec::new();
+    let at_zero = cost::score_shift(&mut ref_win, &samples, [0.0, 0.0], 0, &mut scratch);
     // a shift must keep half the overlap the georeferenced position has
     let min_support = 16.max(at_zero.support / 2).min(samples.len() / 2);
     let trials = scan(&ref_win, &samples, radius_px, min_support);

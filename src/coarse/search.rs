@@ -1,13 +1,8 @@
 //! The steps of the coarse search: which overview level to search on, the
 //! exhaustive scan of trial shifts there, the distinct minima of that cost
 //! map, and the refinement of one minimum down the pyramid.
-//!
-//! The scan scores its shifts twice: at each shift's own spread, which gives
-//! the spread of the best-fitting shift, then every shift at 3 times that
-//! spread ([`Clip::at_spread`]), so that the costs its minima are ranked by
-//! compare.
 
-use super::cost::{score_shift, Clip, Sample, Scratch, ShiftScore};
+use super::cost::{score_shift, Sample, ShiftScore};
 use super::lattice::LatticeSamples;
 use crate::grid::{Grid, MemGrid};
 
@@ -68,8 +63,7 @@ pub fn window<G: Grid + ?Sized>(grid: &mut G, box_m: &[f64; 4]) -> MemGrid {
 }
 
 /// The full scan of the in-memory `window`: every shift (i dx, j dy) by whole
-/// pixels of the window, |i|, |j| <= radius_px, row-major over j then i, at
-/// the common clip of the best spread among them.
+/// pixels of the window, |i|, |j| <= radius_px, row-major over j then i.
 pub fn scan(
     window: &MemGrid,
     samples: &[Sample],
@@ -79,36 +73,17 @@ pub fn scan(
     let gt = window.geotransform();
     let step_m = [gt.gsd_x(), gt.gsd_y()];
     let lattice = LatticeSamples::new(window, samples);
-    let mut scratch = Scratch::default();
-    let mut score_all = |clip: Clip| -> Vec<Trial> {
-        let mut trials = Vec::with_capacity(((2 * radius_px + 1) * (2 * radius_px + 1)) as usize);
-        for j in -radius_px..=radius_px {
-            for i in -radius_px..=radius_px {
-                trials.push(Trial {
-                    shift_xy_m: [i as f64 * step_m[0], j as f64 * step_m[1]],
-                    score: lattice.score(window, [i, j], min_support, clip, &mut scratch),
-                });
-            }
+    let mut scratch = Vec::with_capacity(samples.len());
+    let mut trials = Vec::with_capacity(((2 * radius_px + 1) * (2 * radius_px + 1)) as usize);
+    for j in -radius_px..=radius_px {
+        for i in -radius_px..=radius_px {
+            trials.push(Trial {
+                shift_xy_m: [i as f64 * step_m[0], j as f64 * step_m[1]],
+                score: lattice.score(window, [i, j], min_support, &mut scratch),
+            });
         }
-        trials
-    };
-    let own = score_all(Clip::OwnSpread);
-    if !super::switch::get().clip {
-        return own;
     }
-    match best_spread(&own) {
-        Some(nmad_m) => score_all(Clip::at_spread(nmad_m)),
-        None => own,
-    }
-}
-
-/// The smallest NMAD among trials with a finite cost.
-pub fn best_spread(trials: &[Trial]) -> Option<f64> {
     trials
-        .iter()
-        .filter(|t| t.score.cost_m.is_finite())
-        .map(|t| t.score.nmad_m)
-        .min_by(f64::total_cmp)
 }
 
 /// The distinct local minima of a (2 r + 1)^2 scan, best first: a trial no
@@ -160,12 +135,6 @@ pub fn minima(trials: &[Trial], radius_px: i64, separation_px: i64, keep: usize)
 /// One refinement step on a finer level: the best of the 5 x 5 shifts
 /// `start + (i, j) step` (|i|, |j| <= 2); at `subpixel`, a parabola through the
 /// best and its neighbours along each axis moves it by at most half a step.
-///
-/// Each shift is clipped at its own spread: a search for the local minimum,
-/// whose result [`super::compare`] then judges against the others at a common
-/// clip. (At a common clip the sub-pixel step of the 1 km test on 30 m DSMs
-/// stays a third of a pixel off: sub-pixel shifts pay for the bilinear
-/// interpolation of the reference at a clip that whole-pixel shifts set.)
 pub fn refine<G: Grid + ?Sized>(
     reference: &mut G,
     samples: &[Sample],
@@ -174,8 +143,7 @@ pub fn refine<G: Grid + ?Sized>(
     min_support: usize,
     subpixel: bool,
 ) -> Trial {
-    let mut scratch = Scratch::default();
-    let clip = Clip::OwnSpread;
+    let mut scratch = Vec::with_capacity(samples.len());
     let mut score_at = |i: i64, j: i64| {
         let shift = [
             start_xy_m[0] + i as f64 * step_m[0],
@@ -183,7 +151,7 @@ pub fn refine<G: Grid + ?Sized>(
         ];
         Trial {
             shift_xy_m: shift,
-            score: score_shift(reference, samples, shift, min_support, clip, &mut scratch),
+            score: score_shift(reference, samples, shift, min_support, &mut scratch),
         }
     };
     let mut grid = [[None::<Trial>; 5]; 5];
@@ -227,7 +195,7 @@ pub fn refine<G: Grid + ?Sized>(
             winner.shift_xy_m[0] + du * step_m[0],
             winner.shift_xy_m[1] + dv * step_m[1],
         ];
-        let score = score_shift(reference, samples, shift, min_support, clip, &mut scratch);
+        let score = score_shift(reference, samples, shift, min_support, &mut scratch);
         if score.cost_m <= winner.score.cost_m * 1.05 {
             winner = Trial {
                 shift_xy_m: shift,

@@ -6,7 +6,7 @@
 use nalgebra::Vector3;
 
 use super::{config, IcpConfig, IcpError};
-use crate::coarse::cost::{sample_box, score_shift, Clip};
+use crate::coarse::cost::{sample_box, score_shift};
 use crate::coarse::{estimate, CoarseConfig, CoarseError};
 use crate::geo::Bounds;
 use crate::grid::{Grid, Pyramid};
@@ -149,14 +149,7 @@ fn has_common_data<R: Pyramid, M: Pyramid>(
         return Err(IcpError::Read(e));
     }
     let mut refg = reference.open_level(level).map_err(IcpError::Read)?;
-    let score = score_shift(
-        &mut refg,
-        &samples,
-        [0.0, 0.0],
-        0,
-        Clip::OwnSpread,
-        &mut Default::default(),
-    );
+    let score = score_shift(&mut refg, &samples, [0.0, 0.0], 0, &mut Vec::new());
     if let Some(e) = refg.take_error() {
         return Err(IcpError::Read(e));
     }

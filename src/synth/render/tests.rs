@@ -2,7 +2,7 @@
 //! sub-pixel motions (the reason they exist).
 
 use super::*;
-use crate::coarse::cost::{sample_box, score_shift, Clip};
+use crate::coarse::cost::{sample_box, score_shift};
 use crate::geo::GeoTransform;
 use crate::grid::MemGrid;
 use crate::synth::objects::ObjectParams;
@@ -121,19 +121,12 @@ fn sub_pixel_shift_survives_every_rendering() {
             inner[3] - 20.0,
         ];
         let samples = sample_box(&mut moving, &inner, 100_000);
-        let mut scratch = Default::default();
+        let mut scratch = Vec::new();
         let mut best = (f64::INFINITY, [0.0, 0.0]);
         for j in -14..=14 {
             for i in -14..=14 {
                 let shift = [i as f64 * 0.05 * gsd, j as f64 * 0.05 * gsd];
-                let s = score_shift(
-                    &mut reference,
-                    &samples,
-                    shift,
-                    100,
-                    Clip::OwnSpread,
-                    &mut scratch,
-                );
+                let s = score_shift(&mut reference, &samples, shift, 100, &mut scratch);
                 if s.cost_m < best.0 {
                     best = (s.cost_m, shift);
                 }
