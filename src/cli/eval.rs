@@ -78,12 +78,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 &config,
             )
         });
-        while !work.is_finished() {
+        let report = || {
             let (done, total) = config.progress.get();
             bar.set_length(total);
             bar.set_position(done);
+        };
+        while !work.is_finished() {
+            report();
             std::thread::sleep(std::time::Duration::from_millis(100));
         }
+        // A run shorter than one poll still ends its log with the final count.
+        report();
         work.join()
             .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
     });

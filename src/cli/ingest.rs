@@ -50,6 +50,10 @@ struct BarProgress {
 }
 
 impl IngestProgress for BarProgress {
+    fn planned(&self, dsms: usize) {
+        self.lines.set_length(dsms as u64);
+    }
+
     fn dsm_started(&self, id: &str, rows_total: u64) {
         let span = tracing::warn_span!("ingest", dsm = %id);
         if let Ok(style) = indicatif::ProgressStyle::with_template(

@@ -119,6 +119,8 @@ impl From<SourceError> for IngestError {
 
 /// Progress callbacks (rows of level 0); every method defaults to nothing.
 pub trait IngestProgress {
+    /// The number of input DSMs, once the inputs are listed (skipped ones included).
+    fn planned(&self, _dsms: usize) {}
     fn dsm_started(&self, _id: &str, _rows_total: u64) {}
     fn rows_done(&self, _rows: u64) {}
     fn dsm_finished(&self, _outcome: &DsmOutcome) {}
@@ -160,6 +162,7 @@ pub fn ingest_with(
     };
     let plan = plan_all(store_path, &attrs, files, options.force)?;
     let (mut outcomes, todo) = (plan.skipped, plan.todo);
+    progress.planned(outcomes.len() + todo.len());
     for outcome in &outcomes {
         progress.dsm_finished(outcome);
     }

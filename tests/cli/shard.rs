@@ -1,8 +1,8 @@
 //! Integration tests of sharded `align`: three `--shard K/3` processes run at
 //! once, then `--merge`, give the poses of a single run to 1e-9; the merge
 //! names a missing or incomplete shard and refuses a shard still running; a
-//! shard re-run resumes its journal; with stderr not a terminal, `align`
-//! prints plain progress lines at the interval asked for.
+//! shard re-run resumes its journal; with stderr not a terminal, `align`,
+//! `eval`, `fuse` and `ingest` print plain progress lines at the interval asked for.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -223,7 +223,6 @@ fn progress_lines(stderr_file: &Path) -> Vec<String> {
 }
 
 #[test]
-#[ignore = "passes alone (cargo test --release --test cli shard:: -- --include-ignored); in the full suite its align registers no pair within the run: under investigation"]
 fn without_a_terminal_long_commands_print_plain_progress_lines() {
     let c = collection();
     let dir = folder("progress");
@@ -282,4 +281,32 @@ fn without_a_terminal_long_commands_print_plain_progress_lines() {
     );
     let eval = run(&["eval", store, "--poses", out, "--threads", "1"], false);
     assert!(eval.iter().any(|l| l.contains(" pairs (")), "{eval:?}");
+    let fused = dir.join("fused.tif");
+    let fuse = run(
+        &[
+            "fuse",
+            store,
+            "--poses",
+            out,
+            "--out",
+            fused.to_str().unwrap(),
+        ],
+        false,
+    );
+    assert!(fuse.iter().any(|l| l.contains(" tiles (")), "{fuse:?}");
+    let tiles = c.dir.join("tiles");
+    let again = dir.join("again.zarr");
+    let ingest = run(
+        &[
+            "ingest",
+            tiles.to_str().unwrap(),
+            "--store",
+            again.to_str().unwrap(),
+        ],
+        false,
+    );
+    assert!(
+        ingest.iter().any(|l| l.contains("9/9 DSMs (")),
+        "{ingest:?}"
+    );
 }
