@@ -401,8 +401,10 @@ fn effective_information(
 ) -> Vec<Matrix6<f64>> {
     let median_trace = |f: &dyn Fn(&EdgeInformation) -> f64| {
         let mut v: Vec<f64> = information.iter().map(f).collect();
-        v.sort_by(f64::total_cmp);
-        v.get(v.len() / 2).copied().unwrap_or(0.0) / 3.0
+        if v.is_empty() {
+            return 0.0;
+        }
+        crate::coarse::cost::median_in_place(&mut v) / 3.0
     };
     let floor_r = options.floor_of_median * median_trace(&|e| e.rotation.trace());
     let floor_t = options.floor_of_median * median_trace(&|e| e.translation.trace());
@@ -450,8 +452,11 @@ fn scalar_graph(graph: &PoseGraph, omegas: &[Matrix6<f64>]) -> PoseGraph {
             .map(|o| weight(o, at) / scale)
             .filter(|&w| w > 0.0)
             .collect();
-        w.sort_by(f64::total_cmp);
-        w.get(w.len() / 2).copied().unwrap_or(1.0)
+        if w.is_empty() {
+            1.0
+        } else {
+            crate::coarse::cost::median_in_place(&mut w)
+        }
     };
     let (qr, qt) = (median(0, mr), median(3, mt));
     // (an edge of weight 0 stays out)

@@ -3,12 +3,13 @@
 //! pair's error per axis, and the calibration of the pairs' sigmas
 //! (fraction within 1, 2, 3 sigma per axis).
 
+use std::collections::HashMap;
 use std::io::BufRead;
 use std::path::PathBuf;
 
 use clap::Args;
 use dsmstream::journal::EdgeRecord;
-use dsmstream::poses::PosesFile;
+use dsmstream::poses::{PoseEntry, PosesFile};
 use dsmstream::synth::calibration::{calibration, EdgeError};
 use dsmstream::synth::Truth;
 
@@ -29,6 +30,9 @@ pub struct ScoreArgs {
     /// List the N pairs with the largest |error| / sigma.
     #[arg(long, default_value_t = 5)]
     worst: usize,
+    /// List the N DSMs with the largest error (shift at the tile centre).
+    #[arg(long, default_value_t = 5)]
+    worst_dsms: usize,
     /// Also write every journaled pair's error and sigma per axis to this TSV file.
     #[arg(long)]
     pairs: Option<PathBuf>,
@@ -69,7 +73,12 @@ pub fn run(a: ScoreArgs) -> Result<(), String> {
     dsm_m.sort_by(f64::total_cmp);
     let median_m = dsm_m.get(dsm_m.len() / 2).copied().unwrap_or(f64::NAN);
     let worst_edge_m = edges.iter().map(|e| e.shift_error_m()).fold(0.0, f64::max);
-    let dsm_cover = per_dsm.as_ref().map(|p| dsm_coverage(&poses, &p.tiles));
+    let by_id: HashMap<&str, &PoseEntry> = poses.poses.iter().map(|p| (p.id.as_str(), p)).collect();
+    let dsm_cover = per_dsm.as_ref().map(|p| dsm_coverage(&by_id, &p.tiles));
+    let mut worst_dsms: Vec<&(String, f64, f64)> =
+        per_dsm.iter().flat_map(|p| p.tiles.iter()).collect();
+    worst_dsms.sort_by(|a, b| b.1.total_cmp(&a.1).then_with(|| a.0.cmp(&b.0)));
+    worst_dsms.truncate(a.worst_dsms);
     if a.json {
         let doc = serde_json::json!({
             "per_dsm": {
@@ -110,6 +119,7 @@ pub fn run(a: ScoreArgs) -> Result<(), String> {
         pairwise.mean_m, pairwise.worst_m, pairwise.worst_deg
     );
     if edges.is_empty() {
+        print_worst_dsms(&worst_dsms, &by_id);
         return Ok(());
     }
     println!(
@@ -132,6 +142,7 @@ pub fn run(a: ScoreArgs) -> Result<(), String> {
             e.reference, e.moving, e.status, e.error, e.sigma
         );
     }
+    print_worst_dsms(&worst_dsms, &by_id);
     Ok(())
 }
 
@@ -194,12 +205,39 @@ struct DsmCoverage {
     rotation: [f64; 3],
 }
 
-fn dsm_coverage(poses: &PosesFile, tiles: &[(String, f64, f64)]) -> Option<DsmCoverage> {
-    let norm = |v: &[f64; 3]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+/// The DSMs with the largest error: id, error (m, deg), the norm of its shift
+/// sigma and its status in poses.json.
+fn print_worst_dsms(worst: &[&(String, f64, f64)], by_id: &HashMap<&str, &PoseEntry>) {
+    if worst.is_empty() {
+        return;
+    }
+    println!("worst DSMs:");
+    for (id, m, deg) in worst {
+        let pose = by_id.get(id.as_str());
+        let sigma = pose
+            .and_then(|p| p.sigma.as_ref())
+            .map(|s| format!("{:.3} m", norm(&s.shift_m)))
+            .unwrap_or_else(|| "-".into());
+        let status = pose
+            .and_then(|p| p.status.as_ref())
+            .map(|s| format!("{s:?}").to_lowercase())
+            .unwrap_or_else(|| "-".into());
+        println!("  {id}: {m:.4} m / {deg:.4} deg; shift sigma {sigma}; status {status}");
+    }
+}
+
+fn norm(v: &[f64; 3]) -> f64 {
+    v.iter().map(|x| x * x).sum::<f64>().sqrt()
+}
+
+fn dsm_coverage(
+    by_id: &HashMap<&str, &PoseEntry>,
+    tiles: &[(String, f64, f64)],
+) -> Option<DsmCoverage> {
     let rows: Vec<(f64, f64)> = tiles
         .iter()
         .filter_map(|(id, m, deg)| {
-            let p = poses.poses.iter().find(|p| &p.id == id)?;
+            let p = by_id.get(id.as_str())?;
             let s = p.sigma.as_ref()?;
             Some((
                 m / norm(&s.shift_m).max(1e-12),
