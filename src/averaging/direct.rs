@@ -53,6 +53,11 @@ impl Budget {
 /// tiles: 1.4).
 pub(crate) const MAX_LINKS_PER_NODE: f64 = 2.5;
 
+/// Merged adjacency entries the analysis may spend per block update of the
+/// budget: an entry is an integer compare and copy, an update a D x D block
+/// product (216 multiply-adds for D = 6).
+const ANALYSIS_PER_UPDATE: usize = 16;
+
 /// The elimination order and the structure of the factor.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub(crate) struct Symbolic {
@@ -126,8 +131,9 @@ impl Symbolic {
         let mut position = vec![usize::MAX; n];
         let mut order = Vec::with_capacity(n);
         let mut columns = Vec::with_capacity(n);
-        // Work of the analysis itself (merged adjacency entries): bounded by the
-        // update budget too, so a graph over budget is given up quickly.
+        // Work of the analysis itself (merged adjacency entries, each far cheaper
+        // than a block update): bounded by ANALYSIS_PER_UPDATE x the update
+        // budget, so a graph over budget is given up quickly.
         let (mut blocks, mut updates, mut work) = (0usize, 0usize, 0usize);
         while let Some(Reverse((degree, k))) = heap.pop() {
             // Stale entries (the degree changed since) are skipped: every change
@@ -142,6 +148,13 @@ impl Symbolic {
             blocks += neighbours.len();
             updates += neighbours.len() * (neighbours.len() + 1) / 2;
             if blocks > budget.max_blocks || updates > budget.max_updates {
+                tracing::debug!(
+                    n,
+                    eliminated = order.len(),
+                    blocks,
+                    updates,
+                    "elimination over budget"
+                );
                 return None;
             }
             // A leaf only leaves its neighbour's list (a hub of many leaves would
@@ -158,7 +171,13 @@ impl Symbolic {
             // The neighbours of k become a clique.
             for &a in &neighbours {
                 work += adjacency[a].len() + neighbours.len();
-                if work > budget.max_updates {
+                if work > budget.max_updates.saturating_mul(ANALYSIS_PER_UPDATE) {
+                    tracing::debug!(
+                        n,
+                        eliminated = order.len(),
+                        work,
+                        "elimination analysis over budget"
+                    );
                     return None;
                 }
                 adjacency[a] = merge(&adjacency[a], &neighbours, a, k);
@@ -335,7 +354,7 @@ impl<const D: usize> Factor<D> {
 /// pairs: 1.5 and 8); a well-connected grid of 10^4 tiles many more (8 blocks),
 /// and there CG with a multilevel preconditioner is cheaper (measured:
 /// tools/bench/informed.rs).
-pub(crate) const BUDGET_PER_NODE_AND_LINK: (usize, usize) = (3, 32);
+pub(crate) const BUDGET_PER_NODE_AND_LINK: (usize, usize) = (8, 128);
 
 /// A system H x = rhs over `n` nodes for [`solve_within_budget`]: its block
 /// diagonal, its off-diagonal blocks H_ij of linked nodes, and H applied to a
