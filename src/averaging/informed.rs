@@ -192,8 +192,9 @@ impl Default for InformedOptions {
 }
 
 /// Up to this many nodes the pose sigmas come from the joint normal equations
-/// (rotation uncertainty carried into the shifts; exact up to
-/// `CovarianceMethod::exact_max_nodes / 2`, sampled above); larger graphs use
+/// (rotation uncertainty carried into the shifts; exact: a dense inverse up to
+/// `CovarianceMethod::exact_max_nodes / 2`, selected inversion of a sparse
+/// factor above, sampled when that is over budget); larger graphs use
 /// the decoupled covariance (shift given the rotations: an approximation that
 /// understates the shift sigmas of tiles far from well-fixed ones).
 pub const JOINT_COVARIANCE_MAX_NODES: usize = 2000;

@@ -3,16 +3,19 @@
 //! gauge of its component (the six rigid motions projected out: C = P H^+ P).
 //! Unlike the decoupled covariance ([`crate::averaging::covariance`]), which gives
 //! the shift *given* the rotations, this one carries the rotation uncertainty of
-//! a block of tiles into the shifts of its far tiles. Exact (dense inverse of the
-//! 6n x 6n matrix) up to `exact_max_nodes / 2` nodes; larger graphs are sampled
-//! as in the decoupled case: x = H^+ J^T Omega^(1/2) xi has covariance H^+ (about
-//! 1 / sqrt(2 samples) relative error per sigma).
+//! a block of tiles into the shifts of its far tiles. Exact: a dense inverse of
+//! the 6n x 6n matrix up to `exact_max_nodes / 2` nodes, above that selected
+//! inversion of a sparse factor within a fixed budget ([`selected`]); graphs
+//! over that budget are sampled as in the decoupled case: x = H^+ J^T
+//! Omega^(1/2) xi has covariance H^+ (about 1 / sqrt(2 samples) relative error
+//! per sigma).
 
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Vector3, Vector6};
 
 use super::{linearise, pivots, JointSystem};
 use crate::averaging::cg::StepTolerance;
 use crate::averaging::covariance::{gauge_free_diagonal, CovarianceMethod, NodeSigma};
+use crate::averaging::direct::{Budget, Symbolic};
 use crate::graph::PoseGraph;
 use crate::rng::SplitMix64;
 
@@ -29,9 +32,11 @@ pub(crate) fn joint_node_sigmas(
     let active: Vec<f64> = omegas.iter().map(|o| f64::from(o.amax() > 0.0)).collect();
     let pivots = pivots(graph, &active, rotations, translations);
     let system = linearise(graph, omegas, &active, rotations, translations, &pivots);
-    let null = null_space(graph.n, &pivots, components);
+    let null = null_space(&pivots, components);
     let variances = if graph.n <= method.exact_max_nodes / 2 {
-        exact(&system, &null)
+        exact(&system, &dense(graph.n, &null))
+    } else if let Some(variances) = selected(&system, &null) {
+        variances
     } else {
         sampled(&system, &null, method)
     };
@@ -57,56 +62,168 @@ pub(crate) fn joint_node_sigmas(
         .collect()
 }
 
+/// One component's rigid motions: its members and, per motion, the blocks of an
+/// orthonormal basis vector at those members (zero elsewhere).
+pub(super) struct ComponentMotions<'a> {
+    members: &'a [usize],
+    basis: Vec<Vec<Vector6<f64>>>,
+}
+
 /// The six rigid motions of each component (turns about its mean pivot, shifts),
-/// orthonormal over all 6n unknowns.
-fn null_space(
-    n: usize,
+/// orthonormal over all 6n unknowns; stored per component (a dense 6n vector per
+/// component and motion would be quadratic in a graph of many components).
+pub(super) fn null_space<'a>(
     pivots: &[Vector3<f64>],
-    components: &[Vec<usize>],
-) -> Vec<Vec<Vector6<f64>>> {
-    let mut out: Vec<Vec<Vector6<f64>>> = Vec::new();
-    for members in components {
-        let centre =
-            members.iter().map(|&k| pivots[k]).sum::<Vector3<f64>>() / members.len().max(1) as f64;
-        let mut basis: Vec<Vec<Vector6<f64>>> = Vec::new();
-        for a in 0..6 {
-            let mut v = vec![Vector6::zeros(); n];
-            for &k in members {
+    components: &'a [Vec<usize>],
+) -> Vec<ComponentMotions<'a>> {
+    let dot = |a: &[Vector6<f64>], b: &[Vector6<f64>]| -> f64 {
+        a.iter().zip(b).map(|(x, y)| x.dot(y)).sum()
+    };
+    components
+        .iter()
+        .map(|members| {
+            let centre = members.iter().map(|&k| pivots[k]).sum::<Vector3<f64>>()
+                / members.len().max(1) as f64;
+            let mut basis: Vec<Vec<Vector6<f64>>> = Vec::new();
+            for a in 0..6 {
                 let unit = Vector3::ith(a % 3, 1.0);
-                v[k] = if a < 3 {
-                    let shift = unit.cross(&(pivots[k] - centre));
-                    Vector6::new(unit.x, unit.y, unit.z, shift.x, shift.y, shift.z)
-                } else {
-                    Vector6::new(0.0, 0.0, 0.0, unit.x, unit.y, unit.z)
-                };
+                let mut v: Vec<Vector6<f64>> = members
+                    .iter()
+                    .map(|&k| {
+                        if a < 3 {
+                            let shift = unit.cross(&(pivots[k] - centre));
+                            Vector6::new(unit.x, unit.y, unit.z, shift.x, shift.y, shift.z)
+                        } else {
+                            Vector6::new(0.0, 0.0, 0.0, unit.x, unit.y, unit.z)
+                        }
+                    })
+                    .collect();
+                for b in &basis {
+                    let c = dot(&v, b);
+                    v.iter_mut().zip(b).for_each(|(x, y)| *x -= y * c);
+                }
+                let norm = dot(&v, &v).sqrt();
+                if norm > 1e-12 {
+                    v.iter_mut().for_each(|x| *x /= norm);
+                    basis.push(v);
+                }
             }
-            for b in &basis {
-                let c = dot(&v, b);
-                v.iter_mut().zip(b).for_each(|(x, y)| *x -= y * c);
-            }
-            let norm = dot(&v, &v).sqrt();
-            if norm > 1e-12 {
-                v.iter_mut().for_each(|x| *x /= norm);
-                basis.push(v);
-            }
+            ComponentMotions { members, basis }
+        })
+        .collect()
+}
+
+/// The motions as dense 6n vectors (for the dense inverse of small graphs).
+pub(super) fn dense(n: usize, null: &[ComponentMotions]) -> Vec<Vec<Vector6<f64>>> {
+    let mut out = Vec::new();
+    for c in null {
+        for b in &c.basis {
+            let mut v = vec![Vector6::zeros(); n];
+            c.members.iter().zip(b).for_each(|(&k, x)| v[k] = *x);
+            out.push(v);
         }
-        out.extend(basis);
     }
     out
 }
 
-fn dot(a: &[Vector6<f64>], b: &[Vector6<f64>]) -> f64 {
-    a.iter().zip(b).map(|(x, y)| x.dot(y)).sum()
-}
-
-fn project_out(x: &mut [Vector6<f64>], null: &[Vec<Vector6<f64>>]) {
-    for v in null {
-        let c = dot(x, v);
-        x.iter_mut().zip(v).for_each(|(a, b)| *a -= b * c);
+fn project_out(x: &mut [Vector6<f64>], null: &[ComponentMotions]) {
+    for c in null {
+        for b in &c.basis {
+            let d: f64 = c.members.iter().zip(b).map(|(&k, y)| x[k].dot(y)).sum();
+            c.members.iter().zip(b).for_each(|(&k, y)| x[k] -= y * d);
+        }
     }
 }
 
-fn exact(system: &JointSystem, null: &[Vec<Vector6<f64>>]) -> Vec<Vector6<f64>> {
+/// Block updates (6 x 6 products) the exact marginals may spend: about a
+/// second of factor and selected inversion, whatever the graph's shape (this
+/// path serves graphs up to `informed::JOINT_COVARIANCE_MAX_NODES`).
+const SELECTED_MAX_UPDATES: usize = 4_000_000;
+/// Off-diagonal blocks the factor may keep (the inversion keeps as many again).
+const SELECTED_MAX_BLOCKS: usize = 200_000;
+
+/// Exact gauge-free marginals by selected inversion of a sparse factor, as in
+/// the decoupled case (`covariance::selected`): each component anchored at its
+/// node of most information, C the anchored inverse (a generalised inverse of
+/// H), and block k of P C P = C_kk - V_k W_k^T - W_k V_k^T + V_k (V^T W) V_k^T
+/// with W = C V and V the component's orthonormal motions. None when the
+/// factor is over budget or the anchored matrix is not positive definite (a
+/// component with more free directions than its rigid motions).
+pub(super) fn selected(
+    system: &JointSystem,
+    null: &[ComponentMotions],
+) -> Option<Vec<Vector6<f64>>> {
+    let n = system.n;
+    let mut diagonal = vec![Matrix6::zeros(); n];
+    for e in &system.edges {
+        diagonal[e.i] += e.a_i.tr_mul(&(e.omega * e.a_i));
+        diagonal[e.j] += e.a_j.tr_mul(&(e.omega * e.a_j));
+    }
+    let mut fixed = vec![true; n];
+    for c in null.iter().filter(|c| c.members.len() > 1) {
+        let anchor = c.members.iter().copied().max_by(|&a, &b| {
+            diagonal[a]
+                .trace()
+                .total_cmp(&diagonal[b].trace())
+                .then(b.cmp(&a))
+        })?;
+        c.members.iter().for_each(|&k| fixed[k] = k == anchor);
+    }
+    for (d, _) in diagonal.iter_mut().zip(&fixed).filter(|(_, &f)| f) {
+        *d = Matrix6::identity();
+    }
+    let off = system
+        .edges
+        .iter()
+        .filter(|e| !fixed[e.i] && !fixed[e.j])
+        .map(|e| (e.i, e.j, e.a_i.tr_mul(&(e.omega * e.a_j))));
+    let budget = Budget {
+        max_blocks: SELECTED_MAX_BLOCKS,
+        max_updates: SELECTED_MAX_UPDATES,
+    };
+    let symbolic = Symbolic::analyse(n, off.clone().map(|(i, j, _)| (i, j)), budget)?;
+    let factor = symbolic.factor(&diagonal, off)?;
+    let mut c = factor.inverse_diagonal();
+    // W = C V: the components are decoupled, so one solve per motion index
+    // serves all of them.
+    let motions = null.iter().map(|c| c.basis.len()).max().unwrap_or(0);
+    let (mut v, mut w) = (vec![Matrix6::zeros(); n], vec![Matrix6::zeros(); n]);
+    for a in 0..motions {
+        let mut rhs = vec![Vector6::zeros(); n];
+        for comp in null.iter().filter(|c| c.members.len() > 1) {
+            if let Some(b) = comp.basis.get(a) {
+                for (&k, x) in comp.members.iter().zip(b) {
+                    v[k].set_column(a, x);
+                    if !fixed[k] {
+                        rhs[k] = *x;
+                    }
+                }
+            }
+        }
+        let x = factor.solve(&rhs);
+        for k in (0..n).filter(|&k| !fixed[k]) {
+            w[k].set_column(a, &x[k]);
+        }
+    }
+    for (k, block) in c.iter_mut().enumerate() {
+        if fixed[k] {
+            *block = Matrix6::zeros();
+        }
+    }
+    let mut out = vec![Vector6::repeat(f64::INFINITY); n];
+    for comp in null.iter().filter(|c| c.members.len() > 1) {
+        let vtw: Matrix6<f64> = comp.members.iter().map(|&k| v[k].tr_mul(&w[k])).sum();
+        for &k in comp.members {
+            let (vk, wk) = (v[k], w[k]);
+            let block =
+                c[k] - vk * wk.transpose() - wk * vk.transpose() + vk * vtw * vk.transpose();
+            out[k] = block.diagonal();
+        }
+    }
+    Some(out)
+}
+
+pub(super) fn exact(system: &JointSystem, null: &[Vec<Vector6<f64>>]) -> Vec<Vector6<f64>> {
     let n = system.n;
     let mut h = DMatrix::<f64>::zeros(6 * n, 6 * n);
     let mut add = |r: usize, c: usize, m: &Matrix6<f64>| {
@@ -134,7 +251,7 @@ fn exact(system: &JointSystem, null: &[Vec<Vector6<f64>>]) -> Vec<Vector6<f64>> 
 
 fn sampled(
     system: &JointSystem,
-    null: &[Vec<Vector6<f64>>],
+    null: &[ComponentMotions],
     method: CovarianceMethod,
 ) -> Vec<Vector6<f64>> {
     let roots: Vec<Matrix6<f64>> = system

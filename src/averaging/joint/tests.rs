@@ -82,3 +82,45 @@ fn a_well_connected_grid_stays_with_cg() {
         .solve_direct(&rhs, StepTolerance::step(20_000))
         .is_none());
 }
+
+/// Connected components of the system's edges (isolated nodes alone).
+fn components_of(system: &JointSystem) -> Vec<Vec<usize>> {
+    let mut parent: Vec<usize> = (0..system.n).collect();
+    fn root(parent: &mut [usize], mut k: usize) -> usize {
+        while parent[k] != k {
+            parent[k] = parent[parent[k]];
+            k = parent[k];
+        }
+        k
+    }
+    for e in &system.edges {
+        let (a, b) = (root(&mut parent, e.i), root(&mut parent, e.j));
+        parent[a.max(b)] = a.min(b);
+    }
+    let mut groups = std::collections::BTreeMap::<usize, Vec<usize>>::new();
+    for k in 0..system.n {
+        let r = root(&mut parent, k);
+        groups.entry(r).or_default().push(k);
+    }
+    groups.into_values().collect()
+}
+
+#[test]
+fn selected_inversion_gives_the_dense_joint_marginals() {
+    let system = percolated_system(12, 0.3, 5);
+    let components = components_of(&system);
+    let linked: Vec<&Vec<usize>> = components.iter().filter(|c| c.len() > 1).collect();
+    assert!(linked.len() >= 2, "{} components", linked.len());
+    let null = covariance::null_space(&system.pivots, &components);
+    let dense = covariance::exact(&system, &covariance::dense(system.n, &null));
+    let direct = covariance::selected(&system, &null).expect("within budget");
+    // per entry: rotations (rad^2, ~1e-8) and shifts (m^2, ~1) make the dense
+    // inverse lose about 8 digits
+    for &k in linked.iter().flat_map(|c| c.iter()) {
+        for a in 0..6 {
+            let (d, s) = (direct[k][a], dense[k][a]);
+            assert!(s > 0.0 && s.is_finite(), "{k} {a}: {s}");
+            assert!((d - s).abs() <= 1e-6 * s, "{k} {a}: {d} vs {s}");
+        }
+    }
+}
