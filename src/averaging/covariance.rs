@@ -10,6 +10,7 @@
 
 use super::block::{BlockEdge, BlockSystem};
 use super::cg::StepTolerance;
+use super::marginals::{dense, gauge_free_marginals, project_out, ComponentMotions};
 use crate::graph::PoseGraph;
 use crate::rng::SplitMix64;
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Vector3};
@@ -118,23 +119,23 @@ fn isolated_nodes(n: usize, components: &[Vec<usize>]) -> Vec<bool> {
     out
 }
 
-/// The free motions of each component as orthonormal 3n vectors: `null[a][k]` is
-/// node k's block of the free motion along axis a, restricted per component.
-fn null_vectors(
-    n: usize,
+/// The free motions of each component: `null[a][k]` is node k's block of the
+/// motion along axis a, scaled to unit length over the component.
+fn component_motions<'a>(
     null: &[Vec<Vector3<f64>>],
-    components: &[Vec<usize>],
-) -> Vec<Vec<Vector3<f64>>> {
-    let mut out = Vec::new();
-    for members in components {
-        let scale = 1.0 / (members.len() as f64).sqrt();
-        for axis in null {
-            let mut v = vec![Vector3::zeros(); n];
-            members.iter().for_each(|&k| v[k] = axis[k] * scale);
-            out.push(v);
-        }
-    }
-    out
+    components: &'a [Vec<usize>],
+) -> Vec<ComponentMotions<'a, 3>> {
+    components
+        .iter()
+        .map(|members| {
+            let scale = 1.0 / (members.len() as f64).sqrt();
+            let basis = null
+                .iter()
+                .map(|axis| members.iter().map(|&k| axis[k] * scale).collect())
+                .collect();
+            ComponentMotions { members, basis }
+        })
+        .collect()
 }
 
 /// Diagonals of node blocks of P H^+ P.
@@ -145,130 +146,34 @@ fn marginal_variances(
     components: &[Vec<usize>],
     method: CovarianceMethod,
 ) -> Vec<Vector3<f64>> {
+    let motions = component_motions(null, components);
     if n <= method.exact_max_nodes {
-        exact(n, &edges, &null_vectors(n, null, components))
-    } else if let Some(variances) = selected(n, &edges, null, components) {
+        exact(n, &edges, &dense(n, &motions))
+    } else if let Some(variances) = selected(n, &edges, &motions) {
         variances
     } else {
-        sampled(n, edges, &FreeMotions { null, components }, method)
-    }
-}
-
-/// The free motions of each component without writing them out (a dense 3n
-/// vector per component and axis is quadratic in a graph of many components).
-struct FreeMotions<'a> {
-    /// `null[a][k]`: node k's block of the free motion along axis a.
-    null: &'a [Vec<Vector3<f64>>],
-    components: &'a [Vec<usize>],
-}
-
-impl FreeMotions<'_> {
-    /// Projects the free motions out of `x` (they are orthonormal once each
-    /// component's part is scaled by 1 / sqrt(its size), as in [`null_vectors`]).
-    fn project_out(&self, x: &mut [Vector3<f64>]) {
-        for members in self.components {
-            let scale2 = 1.0 / members.len() as f64;
-            for axis in self.null {
-                let c: f64 = members.iter().map(|&k| x[k].dot(&axis[k])).sum::<f64>() * scale2;
-                members.iter().for_each(|&k| x[k] -= axis[k] * c);
-            }
-        }
+        sampled(n, edges, &motions, method)
     }
 }
 
 /// Exact marginal variances of a large graph whose factor is within the direct
-/// budget ([`super::direct`]): each component is anchored at its node of most
-/// information (its block of the anchored inverse C is zero), the diagonal
-/// blocks of C come from selected inversion, and the mean gauge from
-/// P C P = H^+ (P = I - V V^T, V the component's orthonormal free motions; C is
-/// a generalised inverse of H): block k is
-/// C_kk - V_k W_k^T - W_k V_k^T + V_k (V^T W) V_k^T with W = C V.
-/// None when the factor is over budget or not positive definite.
+/// budget (`marginals::gauge_free_marginals`); None when over it.
 fn selected(
     n: usize,
     edges: &[BlockEdge],
-    null: &[Vec<Vector3<f64>>],
-    components: &[Vec<usize>],
+    motions: &[ComponentMotions<3>],
 ) -> Option<Vec<Vector3<f64>>> {
     let mut diagonal = vec![Matrix3::zeros(); n];
     for e in edges {
         diagonal[e.i] += e.b.transpose() * e.omega * e.b;
         diagonal[e.j] += e.omega;
     }
-    // Anchors and isolated nodes are decoupled with an identity block.
-    let mut fixed = vec![true; n];
-    for members in components.iter().filter(|m| m.len() > 1) {
-        let anchor = members.iter().copied().max_by(|&a, &b| {
-            diagonal[a]
-                .trace()
-                .total_cmp(&diagonal[b].trace())
-                .then(b.cmp(&a))
-        })?;
-        members.iter().for_each(|&k| fixed[k] = k == anchor);
-    }
-    for (d, _) in diagonal.iter_mut().zip(&fixed).filter(|(_, &f)| f) {
-        *d = Matrix3::identity();
-    }
-    let off = edges
+    let links = edges
         .iter()
-        .filter(|e| !fixed[e.i] && !fixed[e.j])
         .map(|e| (e.i, e.j, -(e.b.transpose() * e.omega)));
     let (blocks, updates) = super::direct::BUDGET_PER_NODE_AND_LINK;
     let budget = super::direct::Budget::relative(n, edges.len(), blocks, updates);
-    let symbolic =
-        super::direct::Symbolic::analyse(n, off.clone().map(|(i, j, _)| (i, j)), budget)?;
-    let factor = symbolic.factor(&diagonal, off)?;
-    let mut c = factor.inverse_diagonal();
-    // W = C V, one solve per axis (the components are decoupled, so the axes'
-    // free motions of all components share it).
-    let mut v = vec![Matrix3::zeros(); n];
-    let mut w = vec![Matrix3::zeros(); n];
-    let scale: Vec<f64> = {
-        let mut s = vec![0.0; n];
-        for members in components.iter().filter(|m| m.len() > 1) {
-            let f = 1.0 / (members.len() as f64).sqrt();
-            members.iter().for_each(|&k| s[k] = f);
-        }
-        s
-    };
-    for (a, axis) in null.iter().enumerate() {
-        let rhs: Vec<Vector3<f64>> = (0..n)
-            .map(|k| {
-                if fixed[k] {
-                    Vector3::zeros()
-                } else {
-                    axis[k] * scale[k]
-                }
-            })
-            .collect();
-        let x = factor.solve(&rhs);
-        for k in 0..n {
-            v[k].set_column(a, &(axis[k] * scale[k]));
-            if !fixed[k] {
-                w[k].set_column(a, &x[k]);
-            }
-        }
-    }
-    for (k, block) in c.iter_mut().enumerate() {
-        if fixed[k] {
-            *block = Matrix3::zeros();
-        }
-    }
-    let mut vtw = vec![Matrix3::zeros(); n];
-    for members in components.iter().filter(|m| m.len() > 1) {
-        let m: Matrix3<f64> = members.iter().map(|&k| v[k].tr_mul(&w[k])).sum();
-        members.iter().for_each(|&k| vtw[k] = m);
-    }
-    let out: Vec<Vector3<f64>> = (0..n)
-        .map(|k| {
-            let block = c[k] - v[k] * w[k].transpose() - w[k] * v[k].transpose()
-                + v[k] * vtw[k] * v[k].transpose();
-            block.diagonal()
-        })
-        .collect();
-    out.iter()
-        .all(|d| d.iter().all(|x| x.is_finite()))
-        .then_some(out)
+    gauge_free_marginals(diagonal, links, motions, budget)
 }
 
 fn exact(n: usize, edges: &[BlockEdge], null: &[Vec<Vector3<f64>>]) -> Vec<Vector3<f64>> {
@@ -320,7 +225,7 @@ pub(crate) fn gauge_free_diagonal(
 fn sampled(
     n: usize,
     edges: Vec<BlockEdge>,
-    null: &FreeMotions,
+    motions: &[ComponentMotions<3>],
     method: CovarianceMethod,
 ) -> Vec<Vector3<f64>> {
     let roots: Vec<Matrix3<f64>> = edges
@@ -348,9 +253,9 @@ fn sampled(
             .map(|l| l * Vector3::new(rng.normal(), rng.normal(), rng.normal()))
             .collect();
         let mut rhs = system.gather(|k, _| draws[k]);
-        null.project_out(&mut rhs);
+        project_out(&mut rhs, motions);
         let (mut x, _) = system.solve(&hierarchy, &rhs, None, StepTolerance::sample(20_000));
-        null.project_out(&mut x);
+        project_out(&mut x, motions);
         sum.iter_mut()
             .zip(&x)
             .for_each(|(s, v)| *s += v.component_mul(v));
@@ -421,8 +326,9 @@ mod tests {
             null,
             components,
         } = case();
-        let dense = exact(n, &edges, &null_vectors(n, &null, &components));
-        let direct = selected(n, &edges, &null, &components).unwrap();
+        let motions = component_motions(&null, &components);
+        let dense = exact(n, &edges, &dense(n, &motions));
+        let direct = selected(n, &edges, &motions).unwrap();
         for k in 0..28 {
             let scale = dense[k].amax();
             assert!(scale > 0.0 && scale.is_finite(), "{k}");
@@ -443,17 +349,14 @@ mod tests {
             null,
             components,
         } = case();
-        let dense = exact(n, &edges, &null_vectors(n, &null, &components));
+        let motions = component_motions(&null, &components);
+        let dense = exact(n, &edges, &dense(n, &motions));
         let method = CovarianceMethod {
             exact_max_nodes: 0,
             samples: 2000,
             seed: 5,
         };
-        let free = FreeMotions {
-            null: &null,
-            components: &components,
-        };
-        let sampled = sampled(n, edges, &free, method);
+        let sampled = sampled(n, edges, &motions, method);
         for k in 0..28 {
             for a in 0..3 {
                 let ratio = sampled[k][a] / dense[k][a];

@@ -21,6 +21,7 @@ mod gauge;
 mod informed;
 mod joint;
 mod laplacian;
+mod marginals;
 mod multilevel;
 mod robust;
 mod rotation;

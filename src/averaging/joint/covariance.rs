@@ -15,7 +15,8 @@ use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Vector3, Vector6};
 use super::{linearise, pivots, JointSystem};
 use crate::averaging::cg::StepTolerance;
 use crate::averaging::covariance::{gauge_free_diagonal, CovarianceMethod, NodeSigma};
-use crate::averaging::direct::{Budget, Symbolic};
+use crate::averaging::direct::Budget;
+use crate::averaging::marginals::{dense, gauge_free_marginals, project_out, ComponentMotions};
 use crate::graph::PoseGraph;
 use crate::rng::SplitMix64;
 
@@ -62,20 +63,13 @@ pub(crate) fn joint_node_sigmas(
         .collect()
 }
 
-/// One component's rigid motions: its members and, per motion, the blocks of an
-/// orthonormal basis vector at those members (zero elsewhere).
-pub(super) struct ComponentMotions<'a> {
-    members: &'a [usize],
-    basis: Vec<Vec<Vector6<f64>>>,
-}
-
 /// The six rigid motions of each component (turns about its mean pivot, shifts),
 /// orthonormal over all 6n unknowns; stored per component (a dense 6n vector per
 /// component and motion would be quadratic in a graph of many components).
 pub(super) fn null_space<'a>(
     pivots: &[Vector3<f64>],
     components: &'a [Vec<usize>],
-) -> Vec<ComponentMotions<'a>> {
+) -> Vec<ComponentMotions<'a, 6>> {
     let dot = |a: &[Vector6<f64>], b: &[Vector6<f64>]| -> f64 {
         a.iter().zip(b).map(|(x, y)| x.dot(y)).sum()
     };
@@ -113,28 +107,6 @@ pub(super) fn null_space<'a>(
         .collect()
 }
 
-/// The motions as dense 6n vectors (for the dense inverse of small graphs).
-pub(super) fn dense(n: usize, null: &[ComponentMotions]) -> Vec<Vec<Vector6<f64>>> {
-    let mut out = Vec::new();
-    for c in null {
-        for b in &c.basis {
-            let mut v = vec![Vector6::zeros(); n];
-            c.members.iter().zip(b).for_each(|(&k, x)| v[k] = *x);
-            out.push(v);
-        }
-    }
-    out
-}
-
-fn project_out(x: &mut [Vector6<f64>], null: &[ComponentMotions]) {
-    for c in null {
-        for b in &c.basis {
-            let d: f64 = c.members.iter().zip(b).map(|(&k, y)| x[k].dot(y)).sum();
-            c.members.iter().zip(b).for_each(|(&k, y)| x[k] -= y * d);
-        }
-    }
-}
-
 /// Block updates (6 x 6 products) the exact marginals may spend: about a
 /// second of factor and selected inversion, whatever the graph's shape (this
 /// path serves graphs up to `informed::JOINT_COVARIANCE_MAX_NODES`).
@@ -142,85 +114,26 @@ const SELECTED_MAX_UPDATES: usize = 4_000_000;
 /// Off-diagonal blocks the factor may keep (the inversion keeps as many again).
 const SELECTED_MAX_BLOCKS: usize = 200_000;
 
-/// Exact gauge-free marginals by selected inversion of a sparse factor, as in
-/// the decoupled case (`covariance::selected`): each component anchored at its
-/// node of most information, C the anchored inverse (a generalised inverse of
-/// H), and block k of P C P = C_kk - V_k W_k^T - W_k V_k^T + V_k (V^T W) V_k^T
-/// with W = C V and V the component's orthonormal motions. None when the
-/// factor is over budget or the anchored matrix is not positive definite (a
-/// component with more free directions than its rigid motions).
+/// Exact gauge-free marginals by selected inversion (`marginals`) within a
+/// fixed budget; None when over it.
 pub(super) fn selected(
     system: &JointSystem,
-    null: &[ComponentMotions],
+    motions: &[ComponentMotions<6>],
 ) -> Option<Vec<Vector6<f64>>> {
-    let n = system.n;
-    let mut diagonal = vec![Matrix6::zeros(); n];
+    let mut diagonal = vec![Matrix6::zeros(); system.n];
     for e in &system.edges {
         diagonal[e.i] += e.a_i.tr_mul(&(e.omega * e.a_i));
         diagonal[e.j] += e.a_j.tr_mul(&(e.omega * e.a_j));
     }
-    let mut fixed = vec![true; n];
-    for c in null.iter().filter(|c| c.members.len() > 1) {
-        let anchor = c.members.iter().copied().max_by(|&a, &b| {
-            diagonal[a]
-                .trace()
-                .total_cmp(&diagonal[b].trace())
-                .then(b.cmp(&a))
-        })?;
-        c.members.iter().for_each(|&k| fixed[k] = k == anchor);
-    }
-    for (d, _) in diagonal.iter_mut().zip(&fixed).filter(|(_, &f)| f) {
-        *d = Matrix6::identity();
-    }
-    let off = system
+    let links = system
         .edges
         .iter()
-        .filter(|e| !fixed[e.i] && !fixed[e.j])
         .map(|e| (e.i, e.j, e.a_i.tr_mul(&(e.omega * e.a_j))));
     let budget = Budget {
         max_blocks: SELECTED_MAX_BLOCKS,
         max_updates: SELECTED_MAX_UPDATES,
     };
-    let symbolic = Symbolic::analyse(n, off.clone().map(|(i, j, _)| (i, j)), budget)?;
-    let factor = symbolic.factor(&diagonal, off)?;
-    let mut c = factor.inverse_diagonal();
-    // W = C V: the components are decoupled, so one solve per motion index
-    // serves all of them.
-    let motions = null.iter().map(|c| c.basis.len()).max().unwrap_or(0);
-    let (mut v, mut w) = (vec![Matrix6::zeros(); n], vec![Matrix6::zeros(); n]);
-    for a in 0..motions {
-        let mut rhs = vec![Vector6::zeros(); n];
-        for comp in null.iter().filter(|c| c.members.len() > 1) {
-            if let Some(b) = comp.basis.get(a) {
-                for (&k, x) in comp.members.iter().zip(b) {
-                    v[k].set_column(a, x);
-                    if !fixed[k] {
-                        rhs[k] = *x;
-                    }
-                }
-            }
-        }
-        let x = factor.solve(&rhs);
-        for k in (0..n).filter(|&k| !fixed[k]) {
-            w[k].set_column(a, &x[k]);
-        }
-    }
-    for (k, block) in c.iter_mut().enumerate() {
-        if fixed[k] {
-            *block = Matrix6::zeros();
-        }
-    }
-    let mut out = vec![Vector6::repeat(f64::INFINITY); n];
-    for comp in null.iter().filter(|c| c.members.len() > 1) {
-        let vtw: Matrix6<f64> = comp.members.iter().map(|&k| v[k].tr_mul(&w[k])).sum();
-        for &k in comp.members {
-            let (vk, wk) = (v[k], w[k]);
-            let block =
-                c[k] - vk * wk.transpose() - wk * vk.transpose() + vk * vtw * vk.transpose();
-            out[k] = block.diagonal();
-        }
-    }
-    Some(out)
+    gauge_free_marginals(diagonal, links, motions, budget)
 }
 
 pub(super) fn exact(system: &JointSystem, null: &[Vec<Vector6<f64>>]) -> Vec<Vector6<f64>> {
@@ -251,7 +164,7 @@ pub(super) fn exact(system: &JointSystem, null: &[Vec<Vector6<f64>>]) -> Vec<Vec
 
 fn sampled(
     system: &JointSystem,
-    null: &[ComponentMotions],
+    null: &[ComponentMotions<6>],
     method: CovarianceMethod,
 ) -> Vec<Vector6<f64>> {
     let roots: Vec<Matrix6<f64>> = system

@@ -112,7 +112,10 @@ fn selected_inversion_gives_the_dense_joint_marginals() {
     let linked: Vec<&Vec<usize>> = components.iter().filter(|c| c.len() > 1).collect();
     assert!(linked.len() >= 2, "{} components", linked.len());
     let null = covariance::null_space(&system.pivots, &components);
-    let dense = covariance::exact(&system, &covariance::dense(system.n, &null));
+    let dense = covariance::exact(
+        &system,
+        &crate::averaging::marginals::dense(system.n, &null),
+    );
     let direct = covariance::selected(&system, &null).expect("within budget");
     // per entry: rotations (rad^2, ~1e-8) and shifts (m^2, ~1) make the dense
     // inverse lose about 8 digits
