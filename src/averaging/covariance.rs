@@ -75,14 +75,7 @@ pub(crate) fn node_sigmas(
             r0,
         });
     }
-    let rotation_null: Vec<Vec<Vector3<f64>>> = (0..3)
-        .map(|a| {
-            rotations
-                .iter()
-                .map(|r| r.transpose() * Vector3::ith(a, 1.0))
-                .collect()
-        })
-        .collect();
+    let rotation_null = rotation_null(rotations);
     let translation_null: Vec<Vec<Vector3<f64>>> = (0..3)
         .map(|a| vec![Vector3::ith(a, 1.0); graph.n])
         .collect();
@@ -117,6 +110,19 @@ fn isolated_nodes(n: usize, components: &[Vec<usize>]) -> Vec<bool> {
         members.iter().for_each(|&k| out[k] = false);
     }
     out
+}
+
+/// The free motions of the rotation unknowns (left perturbations): a common turn
+/// about axis a is node k's block R_k^T e_a.
+fn rotation_null(rotations: &[Matrix3<f64>]) -> Vec<Vec<Vector3<f64>>> {
+    (0..3)
+        .map(|a| {
+            rotations
+                .iter()
+                .map(|r| r.transpose() * Vector3::ith(a, 1.0))
+                .collect()
+        })
+        .collect()
 }
 
 /// The free motions of each component: `null[a][k]` is node k's block of the
@@ -302,14 +308,7 @@ mod tests {
             .collect();
         let components: Vec<Vec<usize>> =
             vec![(0..25).collect(), vec![25, 26, 27], vec![28], vec![29]];
-        let null: Vec<Vec<Vector3<f64>>> = (0..3)
-            .map(|a| {
-                rotations
-                    .iter()
-                    .map(|r| r.transpose() * Vector3::ith(a, 1.0))
-                    .collect()
-            })
-            .collect();
+        let null = rotation_null(&rotations);
         Case {
             n,
             edges,
