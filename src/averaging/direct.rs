@@ -103,6 +103,26 @@ fn merge(a: &[usize], b: &[usize], skip_a: usize, skip_b: usize) -> Vec<usize> {
     out
 }
 
+/// Each of `n` nodes' neighbours under `links` (either order, repeats and
+/// self-links allowed), sorted and without repeats.
+pub(crate) fn adjacency_lists(
+    n: usize,
+    links: impl IntoIterator<Item = (usize, usize)>,
+) -> Vec<Vec<usize>> {
+    let mut adjacency: Vec<Vec<usize>> = vec![Vec::new(); n];
+    for (i, j) in links {
+        if i != j {
+            adjacency[i].push(j);
+            adjacency[j].push(i);
+        }
+    }
+    for a in &mut adjacency {
+        a.sort_unstable();
+        a.dedup();
+    }
+    adjacency
+}
+
 impl Symbolic {
     /// Minimum-degree elimination of the graph of `n` nodes and these links
     /// (repeats and self-links allowed); None when the factor would exceed `budget`.
@@ -114,17 +134,7 @@ impl Symbolic {
         if budget.max_blocks == 0 && n > 0 {
             return None;
         }
-        let mut adjacency: Vec<Vec<usize>> = vec![Vec::new(); n];
-        for (i, j) in links {
-            if i != j {
-                adjacency[i].push(j);
-                adjacency[j].push(i);
-            }
-        }
-        for a in &mut adjacency {
-            a.sort_unstable();
-            a.dedup();
-        }
+        let mut adjacency = adjacency_lists(n, links);
         let mut heap: BinaryHeap<Reverse<(usize, usize)>> =
             (0..n).map(|k| Reverse((adjacency[k].len(), k))).collect();
         let mut eliminated = vec![false; n];

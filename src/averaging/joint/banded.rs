@@ -11,17 +11,7 @@ use std::collections::VecDeque;
 /// Reverse Cuthill-McKee numbering of `n` vertices joined by `pairs`: `rank[v]`.
 /// Each connected piece starts from a vertex of least degree.
 pub(super) fn reverse_cuthill_mckee(n: usize, pairs: &[(usize, usize)]) -> Vec<usize> {
-    let mut neighbours = vec![Vec::new(); n];
-    for &(a, b) in pairs {
-        if a != b {
-            neighbours[a].push(b);
-            neighbours[b].push(a);
-        }
-    }
-    for list in &mut neighbours {
-        list.sort_unstable();
-        list.dedup();
-    }
+    let neighbours = crate::averaging::direct::adjacency_lists(n, pairs.iter().copied());
     let degree = |v: usize| neighbours[v].len();
     let mut by_degree: Vec<usize> = (0..n).collect();
     by_degree.sort_by_key(|&v| (degree(v), v));
