@@ -129,7 +129,11 @@ pub fn require_writable_dir(path: &Path) -> anyhow::Result<()> {
     if !dir.is_dir() {
         return Ok(()); // the library names what is wrong with a non-folder
     }
-    let probe = dir.join(format!(".dsmstream-write-probe-{}", std::process::id()));
+    let probe = dir.join(format!(
+        "{}{}",
+        dsmstream::store::WRITE_PROBE_PREFIX,
+        std::process::id()
+    ));
     match std::fs::File::create(&probe) {
         Ok(_) => {
             let _ = std::fs::remove_file(&probe);

@@ -22,6 +22,10 @@ use super::{validate, StoreError};
 use crate::atomic::process_alive;
 
 pub const TMP_TAG: &str = ".tmp-";
+
+/// Prefix of the empty file a command creates and removes at once to test
+/// that the store folder is writable (followed by its pid).
+pub const WRITE_PROBE_PREFIX: &str = ".dsmstream-write-probe-";
 pub const OLD_TAG: &str = ".old-";
 
 /// One input file and the DSM id it becomes.
@@ -188,7 +192,9 @@ fn remove_catalog_temporaries(root: &Path) -> Result<(), StoreError> {
 }
 
 /// True when `dir` holds nothing but what a store under creation (or a
-/// killed creation) holds: the lock file, catalog and DSM temporaries.
+/// killed creation) holds: the lock file, catalog and DSM temporaries, and
+/// the write probes of runs starting now (concurrent ingests into a new store
+/// must not take each other's probe for foreign content).
 pub fn only_leftovers(dir: &Path) -> bool {
     let Ok(entries) = std::fs::read_dir(dir) else {
         return false;
@@ -196,6 +202,7 @@ pub fn only_leftovers(dir: &Path) -> bool {
     entries.filter_map(Result::ok).all(|e| {
         let name = e.file_name().to_string_lossy().into_owned();
         name == LOCK_FILE
+            || name.starts_with(WRITE_PROBE_PREFIX)
             || (name.starts_with(".zarr.json.") && name.ends_with(".tmp"))
             || name.contains(TMP_TAG)
     })
@@ -321,5 +328,26 @@ mod tests {
         assert_eq!(attrs.dsms, ["b", "c"]);
         assert_eq!(catalog::read_root(root).unwrap(), attrs);
         assert!(attrs.crs.is_some());
+    }
+
+    /// What runs creating a store leave in it for a moment (the lock, a
+    /// catalog or DSM temporary, a write probe) does not make the folder
+    /// foreign; anything else does.
+    #[test]
+    fn a_store_under_creation_holds_only_leftovers() {
+        let dir = tempfile::tempdir().unwrap();
+        let root = dir.path();
+        assert!(only_leftovers(root), "an empty folder");
+        for name in [
+            LOCK_FILE.to_string(),
+            ".zarr.json.77.tmp".into(),
+            format!("{WRITE_PROBE_PREFIX}77"),
+        ] {
+            std::fs::write(root.join(name), b"").unwrap();
+        }
+        std::fs::create_dir(root.join(tmp_name("d0"))).unwrap();
+        assert!(only_leftovers(root));
+        std::fs::write(root.join("notes.txt"), b"x").unwrap();
+        assert!(!only_leftovers(root));
     }
 }

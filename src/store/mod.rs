@@ -44,6 +44,7 @@ pub use catalog::{
     Compression, DsmMeta, HeightStats, LevelMeta, SourceInfo, StorageSettings, STORE_VERSION,
 };
 pub use chunks::ChunkRecord;
+pub use files::WRITE_PROBE_PREFIX;
 pub use grid::{ChunkReadError, StoreGrid};
 pub use ingest::{ingest, IngestError, IngestOptions, IngestReport};
 pub use lock::StoreLock;
