@@ -4,10 +4,11 @@
 //! standard errors; the paper's are used when one has none) is decided here,
 //! once, and carried to the report as [`WeightsUsed`].
 
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 
 use super::{AlignConfig, AlignError};
 use crate::averaging::EdgeInformation;
+use crate::fit::Model;
 use crate::graph::{information_weights, paper_weights, Edge, EdgeSigma, PoseGraph, Weighting};
 use crate::pipeline::{IcpFit, PairOutcome, PairTask};
 use crate::poses::rigid::to_local;
@@ -51,7 +52,7 @@ pub fn build_graph(
     for (k, outcome) in outcomes.iter().enumerate() {
         if let PairOutcome::Registered { pair, overlap, fit } = outcome {
             let e = edge(store, *pair, *overlap, fit, &origin_world);
-            information.push(edge_information(fit, &e));
+            information.push(edge_information(fit, &e, config.pipeline.icp.model));
             graph.edges.push(e);
             outcome_of_edge.push(k);
         }
@@ -129,14 +130,27 @@ fn no_edge_error(store: &Store, outcomes: &[PairOutcome], min_overlap: f64) -> A
 /// the world frame by a shift only, so the blocks keep their axes; the
 /// translation block is about the fit's centroid, which [`edge`] made the edge's
 /// measurement point.
-fn edge_information(fit: &IcpFit, edge: &Edge) -> Option<EdgeInformation> {
+///
+/// Under `--model translation` the pair did not estimate its rotation: the
+/// model holds it at identity, so the edge says so with the stiffness of
+/// [`HELD_ROTATION_SIGMA_RAD`] (a zero covariance would read as "knows
+/// nothing" and leave the rotations free to drift).
+fn edge_information(fit: &IcpFit, edge: &Edge, model: Model) -> Option<EdgeInformation> {
     let reliable = fit.reliable();
-    let info = match &fit.information {
+    let mut info = match &fit.information {
         Some(p) => EdgeInformation::from_covariance(&p.covariance_6x6(), reliable),
         None => EdgeInformation::from_sigma(edge.sigma.as_ref()?, reliable),
     };
+    if model == Model::Translation {
+        info.rotation = Matrix3::identity() / HELD_ROTATION_SIGMA_RAD.powi(2);
+    }
     info.is_valid().then_some(info)
 }
+
+/// The rotation sigma of an edge whose model holds the rotation (1e-5 rad,
+/// 0.6 mm at 64 m): stiff enough that the poses come out pure translations,
+/// soft enough to keep the joint solve well conditioned.
+const HELD_ROTATION_SIGMA_RAD: f64 = 1e-5;
 
 /// The graph edge of a registered pair, in the local frame: M_ij, its standard
 /// errors ([`EdgeSigma::from_fit`]), and the point where its translation was
@@ -215,7 +229,7 @@ mod tests {
             ..Edge::new(0, 1, Matrix4::identity(), 0.5, 0.1)
         };
         // without a covariance: 1 / sigma^2 on the diagonal
-        let info = edge_information(&fit(IcpStatus::Converged, None), &edge).unwrap();
+        let info = edge_information(&fit(IcpStatus::Converged, None), &edge, Model::Rigid).unwrap();
         assert!(info.reliable);
         assert!((info.translation[(1, 1)] - 25.0).abs() < 1e-3);
         assert!((info.rotation[(2, 2)] - 1.0 / 16e-8).abs() < 1.0);
@@ -229,7 +243,8 @@ mod tests {
             centroid_world: [1.0, 2.0, 3.0],
             degenerate: vec![Axis::X, Axis::Yaw],
         };
-        let info = edge_information(&fit(IcpStatus::MaxIterations, Some(p)), &edge).unwrap();
+        let info =
+            edge_information(&fit(IcpStatus::MaxIterations, Some(p)), &edge, Model::Rigid).unwrap();
         assert!(!info.reliable, "not converged: never at full weight");
         assert_eq!(info.translation[(0, 0)], 0.0);
         assert!((info.translation[(1, 1)] - 100.0).abs() < 1e-9);
@@ -239,6 +254,6 @@ mod tests {
             sigma: None,
             ..edge
         };
-        assert!(edge_information(&fit(IcpStatus::Converged, None), &bare).is_none());
+        assert!(edge_information(&fit(IcpStatus::Converged, None), &bare, Model::Rigid).is_none());
     }
 }

@@ -427,6 +427,11 @@ fn effective_information(
         .collect()
 }
 
+/// The sigma of an axis an edge does not see (no information at all: the
+/// rotations under `--model translation`): finite, so that it survives the
+/// graph's f32 sigmas and its validation.
+const UNSEEN_SIGMA: f64 = 1e30;
+
 /// Most ratio of a scalar-start weight to the median (either way).
 const SCALAR_WEIGHT_SPAN: f64 = 100.0;
 
@@ -472,7 +477,7 @@ fn scalar_graph(graph: &PoseGraph, omegas: &[Matrix6<f64>]) -> PoseGraph {
     for (e, o) in out.edges.iter_mut().zip(omegas) {
         e.weight = squeeze(weight(o, 0) / mr, qr);
         e.translation_weight = squeeze(weight(o, 3) / mt, qt);
-        let sd = |k: usize| 1.0 / o[(k, k)].max(f64::MIN_POSITIVE).sqrt();
+        let sd = |k: usize| (1.0 / o[(k, k)].max(f64::MIN_POSITIVE).sqrt()).min(UNSEEN_SIGMA);
         e.sigma = Some(EdgeSigma::new(
             Vector3::new(sd(0), sd(1), sd(2)),
             Vector3::new(sd(3), sd(4), sd(5)),
