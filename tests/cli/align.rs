@@ -394,11 +394,19 @@ fn align_with_the_translation_model_gives_pure_translations() {
             for c in 0..3 {
                 let identity = if r == c { 1.0 } else { 0.0 };
                 let m = p.matrix_world[(r, c)];
-                assert!((m - identity).abs() < 1e-6, "{}: {:?}", p.id, p.matrix_world);
+                assert!(
+                    (m - identity).abs() < 1e-6,
+                    "{}: {:?}",
+                    p.id,
+                    p.matrix_world
+                );
             }
         }
         let sigma = p.sigma.as_ref().expect("a sigma per DSM");
-        assert!(sigma.shift_m.iter().all(|s| s.is_finite() && *s > 0.0), "{sigma:?}");
+        assert!(
+            sigma.shift_m.iter().all(|s| s.is_finite() && *s > 0.0),
+            "{sigma:?}"
+        );
     }
     let err = truth.per_dsm_error(&poses).unwrap();
     // measured 2026-12-03: worst 7.6 cm / 0.029 deg (rigid: 0.334 m / 0.082 deg)

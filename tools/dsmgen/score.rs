@@ -13,6 +13,17 @@ use dsmstream::poses::{PoseEntry, PosesFile};
 use dsmstream::synth::calibration::{calibration, EdgeError};
 use dsmstream::synth::Truth;
 
+/// `println!` that ends the program quietly (exit 0) when stdout is closed
+/// early (`dsmgen score ... | head`), as `dsmstream` does, instead of panicking.
+macro_rules! say {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        if writeln!(std::io::stdout(), $($arg)*).is_err() {
+            std::process::exit(0);
+        }
+    }};
+}
+
 #[derive(Args)]
 pub struct ScoreArgs {
     /// truth.json of the collection (dsmgen tiles / cut).
@@ -97,11 +108,11 @@ pub fn run(a: ScoreArgs) -> Result<(), String> {
             "calibration": table,
             "worst_ratio_edges": worst.iter().map(|(_, e)| e).collect::<Vec<_>>(),
         });
-        println!("{doc:#}");
+        say!("{doc:#}");
         return Ok(());
     }
     if let Some(p) = &per_dsm {
-        println!(
+        say!(
             "per DSM ({} posed): median {median_m:.4} m, worst {:.4} m / {:.4} deg",
             dsm_m.len(),
             p.worst_m,
@@ -109,37 +120,47 @@ pub fn run(a: ScoreArgs) -> Result<(), String> {
         );
     }
     if let Some(Some(c)) = &dsm_cover {
-        println!(
+        say!(
             "per DSM sigmas ({} with sigma): error within 1/2/3 x |sigma|: {:.3} / {:.3} / {:.3} (shift), {:.3} / {:.3} / {:.3} (rotation)",
             c.with_sigma, c.shift[0], c.shift[1], c.shift[2], c.rotation[0], c.rotation[1], c.rotation[2]
         );
     }
-    println!(
+    say!(
         "pairwise (all pairs of DSMs): mean {:.4} m, worst {:.4} m / {:.4} deg",
-        pairwise.mean_m, pairwise.worst_m, pairwise.worst_deg
+        pairwise.mean_m,
+        pairwise.worst_m,
+        pairwise.worst_deg
     );
     if edges.is_empty() {
         print_worst_dsms(&worst_dsms, &by_id);
         return Ok(());
     }
-    println!(
+    say!(
         "journaled pairs: {}, worst shift error {worst_edge_m:.4} m",
         edges.len()
     );
-    println!(
-        "| axis | with sigma | held | <= 1 sigma | <= 2 sigma | <= 3 sigma | worst |e|/sigma |"
-    );
-    println!("|---|---|---|---|---|---|---|");
+    say!("| axis | with sigma | held | <= 1 sigma | <= 2 sigma | <= 3 sigma | worst |e|/sigma |");
+    say!("|---|---|---|---|---|---|---|");
     for c in &table {
-        println!(
+        say!(
             "| {} | {} | {} | {:.3} | {:.3} | {:.3} | {:.2} |",
-            c.axis, c.with_sigma, c.held, c.within[0], c.within[1], c.within[2], c.worst_ratio
+            c.axis,
+            c.with_sigma,
+            c.held,
+            c.within[0],
+            c.within[1],
+            c.within[2],
+            c.worst_ratio
         );
     }
     for (r, e) in worst {
-        println!(
+        say!(
             "  {} -> {} ({:?}): worst ratio {r:.1}; error {:.3?} (m, deg), sigma {:.3?}",
-            e.reference, e.moving, e.status, e.error, e.sigma
+            e.reference,
+            e.moving,
+            e.status,
+            e.error,
+            e.sigma
         );
     }
     print_worst_dsms(&worst_dsms, &by_id);
@@ -211,7 +232,7 @@ fn print_worst_dsms(worst: &[&(String, f64, f64)], by_id: &HashMap<&str, &PoseEn
     if worst.is_empty() {
         return;
     }
-    println!("worst DSMs:");
+    say!("worst DSMs:");
     for (id, m, deg) in worst {
         let pose = by_id.get(id.as_str());
         let sigma = pose
@@ -222,7 +243,7 @@ fn print_worst_dsms(worst: &[&(String, f64, f64)], by_id: &HashMap<&str, &PoseEn
             .and_then(|p| p.status.as_ref())
             .map(|s| format!("{s:?}").to_lowercase())
             .unwrap_or_else(|| "-".into());
-        println!("  {id}: {m:.4} m / {deg:.4} deg; shift sigma {sigma}; status {status}");
+        say!("  {id}: {m:.4} m / {deg:.4} deg; shift sigma {sigma}; status {status}");
     }
 }
 
