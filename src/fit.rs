@@ -15,7 +15,9 @@
 
 pub mod information;
 
-pub use information::{fit_information, Axis, DegeneracyRule, FitInformation};
+pub use information::{
+    fit_information, fit_information_with, Axis, DegeneracyRule, FitInformation, RotationPrior,
+};
 
 use information::{constrained_directions, pseudo_inverse, NormalEquations};
 #[cfg(test)]
@@ -92,7 +94,17 @@ pub fn point_to_plane_with(
     model: Model,
     rule: &DegeneracyRule,
 ) -> Option<FitUpdate> {
-    let eq = NormalEquations::new(corrs, rule.cluster_cell_m)?;
+    point_to_plane_prior(corrs, model, rule, None)
+}
+
+/// [`point_to_plane_with`] with a prior on the rotation ([`RotationPrior`]).
+pub fn point_to_plane_prior(
+    corrs: &[Correspondence],
+    model: Model,
+    rule: &DegeneracyRule,
+    prior: Option<&RotationPrior>,
+) -> Option<FitUpdate> {
+    let eq = NormalEquations::new(corrs, rule.cluster_cell_m)?.with_rotation_prior(prior);
     let (h, g, radius) = (eq.h, eq.g, eq.radius_m);
     let (ratio, weakest) = match model {
         Model::Rigid => conditioning(&h)?,

@@ -189,6 +189,43 @@ impl NormalEquations {
     }
 }
 
+/// A Gaussian prior on a fit's rotation about its start: what georeferenced
+/// DSMs are known to hold (their relative rotations are hundredths of a degree,
+/// far below what a narrow or flat overlap can measure), so that a direction
+/// the data barely see stays near the start instead of following the noise.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RotationPrior {
+    /// One-sigma per axis, radians (infinite or zero: no prior).
+    pub sigma_rad: f64,
+    /// The current rotation relative to the start (rotation vector, radians).
+    pub current: Vector3<f64>,
+}
+
+impl NormalEquations {
+    /// The equations with `prior` added as three pseudo-observations of the
+    /// rotation, weighted like the data (per unit weight, the residual variance
+    /// trace(meat) / trace(H)); their meat is their information times that
+    /// variance, so the sandwich of a direction the data do not see is the
+    /// prior's variance, and of one they see well, the data's.
+    pub fn with_rotation_prior(mut self, prior: Option<&RotationPrior>) -> Self {
+        let Some(p) = prior.filter(|p| p.sigma_rad > 0.0 && p.sigma_rad.is_finite()) else {
+            return self;
+        };
+        let variance = self.meat.trace() / self.h.trace().max(f64::MIN_POSITIVE);
+        if !(variance > 0.0 && variance.is_finite()) {
+            return self;
+        }
+        let lambda = variance / (p.sigma_rad * self.radius_m).powi(2);
+        for k in 0..3 {
+            self.h[(k, k)] += lambda;
+            self.g[k] += lambda * p.current[k] * self.radius_m;
+            self.meat[(k, k)] += variance * lambda;
+            self.clustered[(k, k)] += variance * lambda;
+        }
+        self
+    }
+}
+
 /// Cells per kernel bandwidth: the kernel is evaluated between cell sums.
 const CELLS_PER_BANDWIDTH: i64 = 4;
 
@@ -283,7 +320,17 @@ pub fn fit_information(
     model: Model,
     rule: &DegeneracyRule,
 ) -> Option<FitInformation> {
-    let eq = NormalEquations::new(corrs, rule.cluster_cell_m)?;
+    fit_information_with(corrs, model, rule, None)
+}
+
+/// [`fit_information`] with a prior on the rotation ([`RotationPrior`]).
+pub fn fit_information_with(
+    corrs: &[Correspondence],
+    model: Model,
+    rule: &DegeneracyRule,
+    prior: Option<&RotationPrior>,
+) -> Option<FitInformation> {
+    let eq = NormalEquations::new(corrs, rule.cluster_cell_m)?.with_rotation_prior(prior);
     let (eig, keep) = constrained_directions(&eq, model, rule);
     let scaled = sandwich(&eig, &keep, &restrict(&eq.clustered, model));
     let independent = sandwich(&eig, &keep, &restrict(&eq.meat, model));

@@ -44,6 +44,9 @@ pub struct IcpConfig {
     pub max_roughness_m: f64,
     /// Converged when an update moves less than this (metres, at the overlap's edge).
     pub tolerance_m: f64,
+    /// One-sigma prior on the rotation about the start, degrees per axis
+    /// (infinite: none); see [`crate::fit::RotationPrior`].
+    pub rotation_prior_deg: f64,
 }
 
 impl Default for IcpConfig {
@@ -59,7 +62,25 @@ impl Default for IcpConfig {
             max_level: 3,
             tolerance_m: 1e-4,
             max_roughness_m: 1.0,
+            rotation_prior_deg: f64::INFINITY,
         }
+    }
+}
+
+impl IcpConfig {
+    /// The rotation prior at estimate `t` of a fit that started at `start`;
+    /// None without one (or under the translation model).
+    pub fn rotation_prior(
+        &self,
+        t: &nalgebra::Isometry3<f64>,
+        start: &nalgebra::Isometry3<f64>,
+    ) -> Option<crate::fit::RotationPrior> {
+        (self.model == Model::Rigid && self.rotation_prior_deg.is_finite()).then(|| {
+            crate::fit::RotationPrior {
+                sigma_rad: self.rotation_prior_deg.to_radians(),
+                current: (t.rotation * start.rotation.inverse()).scaled_axis(),
+            }
+        })
     }
 }
 

@@ -7,7 +7,9 @@ use nalgebra::Isometry3;
 use super::associate::Association;
 use super::robust::{smooth_only, weighted};
 use super::{IcpConfig, IcpError, IcpStatus, Metric};
-use crate::fit::{point_to_plane_with, point_to_point, Correspondence, DegeneracyRule, FitSigma};
+use crate::fit::{
+    point_to_plane_prior, point_to_point, Correspondence, DegeneracyRule, FitSigma, RotationPrior,
+};
 
 /// Where one run of the loop over a fixed point set ended.
 pub(super) struct Phase {
@@ -102,7 +104,8 @@ pub(super) fn iterate(
             config.metric,
         );
         // 3. fit the update that brings the matches together
-        let Some(step) = fit(&corrs, config, &rules.degeneracy) else {
+        let prior = config.rotation_prior(&t_ref_moving, &rules.start);
+        let Some(step) = fit(&corrs, config, &rules.degeneracy, prior.as_ref()) else {
             // not one direction the surface constrains
             phase.status = IcpStatus::Degenerate;
             break;
@@ -139,10 +142,15 @@ struct Step {
 /// Point-to-plane (both plane metrics, degenerate directions held by `rule`)
 /// or Kabsch; None when the plane fit constrains no direction. A failed
 /// Kabsch is a zero step.
-fn fit(corrs: &[Correspondence], config: &IcpConfig, rule: &DegeneracyRule) -> Option<Step> {
+fn fit(
+    corrs: &[Correspondence],
+    config: &IcpConfig,
+    rule: &DegeneracyRule,
+    prior: Option<&RotationPrior>,
+) -> Option<Step> {
     match config.metric {
         Metric::PointToPlane | Metric::PointToSurface => {
-            let f = point_to_plane_with(corrs, config.model, rule)?;
+            let f = point_to_plane_prior(corrs, config.model, rule, prior)?;
             Some(Step {
                 update: f.update,
                 constraint_ratio: f.constraint_ratio,

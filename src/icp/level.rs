@@ -10,7 +10,7 @@ use super::iterate::{iterate, Convergence, Phase, Rules};
 use super::robust::{smooth_only, weighted};
 use super::sample::{pixel_window, sample_overlap};
 use super::{IcpConfig, IcpError, IcpResult, IcpStatus, Metric, NnStatsSummary};
-use crate::fit::{fit_information, Correspondence, DegeneracyRule, FitInformation, FitSigma};
+use crate::fit::{fit_information_with, Correspondence, DegeneracyRule, FitInformation, FitSigma};
 use crate::geo::rigid::isometry_to_world;
 use crate::geo::Bounds;
 use crate::grid::{Grid, Pyramid};
@@ -29,6 +29,8 @@ pub(super) struct Level<'a, R> {
 /// How one level ended, in the local frame.
 pub(super) struct LevelOutcome {
     pub t_ref_moving: Isometry3<f64>,
+    /// Where the registration started (the rotation prior is about it).
+    start: Isometry3<f64>,
     pub status: IcpStatus,
     iterations: usize,
     constraint_ratio: f64,
@@ -134,6 +136,7 @@ impl<'a, R: Pyramid> Level<'a, R> {
         let min_inliers = 30.max(self.samples.len() / 100);
         Ok(LevelOutcome {
             t_ref_moving,
+            start: rules.start,
             status: judge(&phase, final_association.corrs.len(), min_inliers),
             iterations,
             constraint_ratio: phase.constraint_ratio,
@@ -250,7 +253,8 @@ impl LevelOutcome {
             smooth_only(a.corrs.clone(), &a.roughness_m, config.max_roughness_m),
             config.metric,
         );
-        fit_information(&corrs, config.model, rule)
+        let prior = config.rotation_prior(&self.t_ref_moving, &self.start);
+        fit_information_with(&corrs, config.model, rule, prior.as_ref())
     }
 
     /// The registration's result: the transform taken to world coordinates
