@@ -447,3 +447,27 @@ fn a_rotation_prior_holds_a_weak_yaw_near_the_georeferencing() {
         );
     }
 }
+
+/// Two `align` runs on one `--out` (not shards): while one holds the output's
+/// lock, the second is refused at once with a message naming the lock, and
+/// writes nothing; once the first ends, the same command runs.
+#[test]
+fn a_second_align_on_the_same_output_is_refused_while_the_first_runs() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = dir.path().join("c.zarr");
+    ingest(&[fixtures().join("synth/chain4")], &store);
+    let out = dir.path().join("p.json");
+    let first = dsmstream::journal::OutputLock::acquire(&out).unwrap();
+    let second = align(&store, &out, &[]);
+    assert!(!second.status.success());
+    let message = stderr(&second);
+    assert!(
+        message.contains("another dsmstream align is writing") && message.contains("p.json.lock"),
+        "{message}"
+    );
+    assert!(!out.exists(), "the refused run wrote poses");
+    drop(first);
+    let third = align(&store, &out, &[]);
+    assert!(third.status.success(), "{}", stderr(&third));
+    assert!(out.exists());
+}
