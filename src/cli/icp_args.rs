@@ -102,9 +102,9 @@ pub struct IcpArgs {
     pub max_roughness: f64,
     /// One-sigma prior on each pair's rotation about its start, degrees per
     /// axis: directions a narrow or flat overlap barely sees stay near the
-    /// georeferenced rotation. Default: none.
-    #[arg(long)]
-    pub rotation_prior_deg: Option<f64>,
+    /// georeferenced rotation; `inf` for none.
+    #[arg(long, default_value_t = defaults().rotation_prior_deg)]
+    pub rotation_prior_deg: f64,
 }
 
 impl Default for IcpArgs {
@@ -121,7 +121,7 @@ impl Default for IcpArgs {
             max_level: d.max_level,
             seed: d.seed,
             max_roughness: d.max_roughness_m,
-            rotation_prior_deg: None,
+            rotation_prior_deg: d.rotation_prior_deg,
         }
     }
 }
@@ -138,7 +138,7 @@ impl IcpArgs {
             || self.max_iter == 0
             || !positive(self.max_displacement)
             || !(self.max_roughness > 0.0)
-            || !positive(self.rotation_prior_deg)
+            || !(self.rotation_prior_deg > 0.0)
         {
             return Err(InputError::new(
                 "--tau, --samples, --max-iter, --max-displacement, --max-roughness and --rotation-prior-deg must be positive",
@@ -155,9 +155,7 @@ impl IcpArgs {
             seed: self.seed,
             max_level: self.max_level,
             max_roughness_m: self.max_roughness,
-            rotation_prior_deg: self
-                .rotation_prior_deg
-                .unwrap_or(defaults().rotation_prior_deg),
+            rotation_prior_deg: self.rotation_prior_deg,
             ..defaults()
         })
     }
@@ -203,8 +201,13 @@ mod tests {
             (d.seed, d.max_roughness_m, d.tolerance_m)
         );
         assert_eq!(c.rotation_prior_deg, d.rotation_prior_deg);
-        let prior = T::try_parse_from(["t", "--rotation-prior-deg", "0.05"]).unwrap();
-        assert_eq!(prior.icp.to_config().unwrap().rotation_prior_deg, 0.05);
+        let prior = T::try_parse_from(["t", "--rotation-prior-deg", "0.2"]).unwrap();
+        assert_eq!(prior.icp.to_config().unwrap().rotation_prior_deg, 0.2);
+        let none = T::try_parse_from(["t", "--rotation-prior-deg", "inf"]).unwrap();
+        assert_eq!(
+            none.icp.to_config().unwrap().rotation_prior_deg,
+            f64::INFINITY
+        );
         let zero = T::try_parse_from(["t", "--rotation-prior-deg", "0"]).unwrap();
         assert!(zero.icp.to_config().is_err(), "a zero prior is refused");
     }
