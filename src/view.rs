@@ -225,6 +225,7 @@ mod tests {
             degenerate: Vec::new(),
             ambiguity: None,
             backward: None,
+            restart: None,
             nn: Default::default(),
         };
         let raw = to_raw_frames(r, &s_ref, &s_mov);

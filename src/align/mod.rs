@@ -147,7 +147,10 @@ pub fn align(
         }
     };
     let scene = scene::build_graph(store, &outcomes, config)?;
-    let solution = solve::solve(&scene, config.graph, plan.anchor)?;
+    let mut solution = solve::solve(&scene, config.graph, plan.anchor)?;
+    if config.pipeline.icp.model == crate::fit::Model::Translation {
+        scene::hold_rotations(store, &scene.origin_world, &mut solution.poses_local);
+    }
     let parts = report::Parts {
         store,
         config,

@@ -4,7 +4,7 @@
 //! standard errors; the paper's are used when one has none) is decided here,
 //! once, and carried to the report as [`WeightsUsed`].
 
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::{Matrix3, Matrix4, Vector3};
 
 use super::{AlignConfig, AlignError};
 use crate::averaging::EdgeInformation;
@@ -145,6 +145,30 @@ fn edge_information(fit: &IcpFit, edge: &Edge, model: Model) -> Option<EdgeInfor
         info.rotation = Matrix3::identity() / HELD_ROTATION_SIGMA_RAD.powi(2);
     }
     info.is_valid().then_some(info)
+}
+
+/// Under `--model translation`: each pose's rotation (what the held edges
+/// left of it, at most a few 1e-6 rad where the pairs' translations do not
+/// close) folded into its shift at the DSM's centre, so the poses are pure
+/// translations that move each DSM's centre where the solve put it.
+pub fn hold_rotations(
+    store: &Store,
+    origin_world: &Vector3<f64>,
+    poses_local: &mut [Matrix4<f64>],
+) {
+    for (pose, dsm) in poses_local.iter_mut().zip(store.dsms()) {
+        let f = dsm.footprint.to_array();
+        let centre = Vector3::new(
+            (f[0] + f[2]) / 2.0,
+            (f[1] + f[3]) / 2.0,
+            dsm.height_stats.mean,
+        ) - origin_world;
+        let moved = pose.fixed_view::<3, 3>(0, 0) * centre + pose.fixed_view::<3, 1>(0, 3);
+        let mut pure = Matrix4::identity();
+        pure.fixed_view_mut::<3, 1>(0, 3)
+            .copy_from(&(moved - centre));
+        *pose = pure;
+    }
 }
 
 /// The rotation sigma of an edge whose model holds the rotation (1e-5 rad,

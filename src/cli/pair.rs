@@ -232,6 +232,21 @@ fn table(reference: &str, moving: &str, r: &IcpResult, pose: &CentredPose, secon
             if b.beyond_noise { "beyond the two fits' noise, added to the sigmas" } else { "within the noise" }
         );
     }
+    if let Some(c) = &r.restart {
+        let _ = writeln!(
+            t,
+            "restarts    {} of 2 ran, the farthest ended {:.3} m from the answer ({} beyond the noise{}){}",
+            c.ran,
+            c.gap_m,
+            c.beyond_noise,
+            if c.beyond_noise > 0 { ", added to the sigmas" } else { "" },
+            if c.moved_m > 0.0 {
+                format!("; both settled {:.3} m from the ladder's answer, which moved there", c.moved_m)
+            } else {
+                String::new()
+            }
+        );
+    }
     let _ = writeln!(
         t,
         "residuals   {:.4} m to the reference surface, {:.4} m to its nearest pixel (RMS, inliers)",

@@ -129,7 +129,67 @@ pub(super) fn iterate(
             break;
         }
     }
+    if phase.status == IcpStatus::MaxIterations {
+        settle(&mut phase, &recent);
+    }
     Ok(phase)
+}
+
+/// Iterates averaged when a loop runs out of iterations without a trend.
+const SETTLE_WINDOW: usize = 10;
+
+/// A loop that ran out of iterations while jittering about a point (the
+/// inlier set flips, each step overshoots by decimetres on a rough cost) has
+/// found that point: their mean is a better answer than the last iterate.
+/// Without a trend (the two halves of the last [`SETTLE_WINDOW`] iterates
+/// agree within the fit's standard errors) the answer becomes that mean; with
+/// a jitter within those standard errors too, the loop counts as converged.
+/// A drift keeps its last iterate and `MaxIterations`.
+fn settle(phase: &mut Phase, recent: &[Isometry3<f64>]) {
+    let n = recent.len();
+    if n < SETTLE_WINDOW + 1 {
+        return;
+    }
+    let window = &recent[n - SETTLE_WINDOW..];
+    let last = window[SETTLE_WINDOW - 1];
+    // each iterate as a 6-vector about the last (translation, rotation vector)
+    let about = |t: &Isometry3<f64>| {
+        let d = t * last.inverse();
+        let (v, r) = (d.translation.vector, d.rotation.scaled_axis());
+        nalgebra::Vector6::new(v.x, v.y, v.z, r.x, r.y, r.z)
+    };
+    let mean = |ts: &[Isometry3<f64>]| {
+        ts.iter().map(about).sum::<nalgebra::Vector6<f64>>() / ts.len() as f64
+    };
+    let half = SETTLE_WINDOW / 2;
+    let (early, late, all) = (mean(&window[..half]), mean(&window[half..]), mean(window));
+    let spread = window
+        .iter()
+        .map(|t| (about(t) - all).map(|v| v * v))
+        .sum::<nalgebra::Vector6<f64>>()
+        .map(|v| (v / SETTLE_WINDOW as f64).sqrt());
+    let sigma = &phase.sigma;
+    let scale = |k: usize| {
+        if k < 3 {
+            sigma.trans_m[k]
+        } else {
+            sigma.rot_deg[k - 3].to_radians()
+        }
+    };
+    // axes the fit gave no sigma (held, or not estimated) must not move at all
+    let within = |v: &nalgebra::Vector6<f64>, factor: f64| {
+        (0..6).all(|k| v[k].abs() <= factor * scale(k) + 1e-9)
+    };
+    if !within(&(late - early), 1.0) {
+        return;
+    }
+    phase.t_ref_moving = Isometry3::from_parts(
+        nalgebra::Translation3::from(all.fixed_rows::<3>(0).into_owned()),
+        nalgebra::UnitQuaternion::from_scaled_axis(all.fixed_rows::<3>(3).into_owned()),
+    ) * last;
+    if within(&spread, 1.0) {
+        phase.status = IcpStatus::Converged;
+    }
 }
 
 /// One fitted step; `sigma` only from the point-to-plane fits.
@@ -172,6 +232,47 @@ mod tests {
 
     fn shift(x_m: f64) -> Isometry3<f64> {
         Isometry3::from_parts(Translation3::new(x_m, 0.0, 0.0), UnitQuaternion::identity())
+    }
+
+    fn phase_with_sigma(trans_m: f64) -> Phase {
+        Phase {
+            sigma: FitSigma {
+                rot_deg: [0.01; 3],
+                trans_m: [trans_m; 3],
+            },
+            ..Phase::default()
+        }
+    }
+
+    #[test]
+    fn a_jitter_without_trend_settles_at_its_mean() {
+        // +-5 cm about x = 1 m, sigma 8 cm: the mean, converged
+        let jitter: Vec<_> = (0..20)
+            .map(|k| shift(1.0 + if k % 2 == 0 { 0.05 } else { -0.05 }))
+            .collect();
+        let mut phase = phase_with_sigma(0.08);
+        settle(&mut phase, &jitter);
+        assert!((phase.t_ref_moving.translation.vector.x - 1.0).abs() < 1e-9);
+        assert_eq!(phase.status, IcpStatus::Converged);
+        // the same jitter with a 2 cm sigma: the mean, still not converged
+        let mut phase = phase_with_sigma(0.02);
+        settle(&mut phase, &jitter);
+        assert!((phase.t_ref_moving.translation.vector.x - 1.0).abs() < 1e-9);
+        assert_eq!(phase.status, IcpStatus::MaxIterations);
+    }
+
+    #[test]
+    fn a_drift_keeps_its_last_iterate() {
+        let drift: Vec<_> = (0..20).map(|k| shift(0.03 * k as f64)).collect();
+        let mut phase = phase_with_sigma(0.08);
+        phase.t_ref_moving = drift[19];
+        settle(&mut phase, &drift);
+        assert_eq!(phase.t_ref_moving, drift[19]);
+        assert_eq!(phase.status, IcpStatus::MaxIterations);
+        // too few iterates to judge
+        let mut phase = phase_with_sigma(0.08);
+        settle(&mut phase, &drift[..5]);
+        assert_eq!(phase.status, IcpStatus::MaxIterations);
     }
 
     #[test]

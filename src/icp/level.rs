@@ -300,6 +300,7 @@ impl LevelOutcome {
             degenerate,
             ambiguity: None,
             backward: None,
+            restart: None,
             nn: NnStatsSummary {
                 queries: self.nn.queries,
                 pixels_visited: self.nn.pixels_visited,

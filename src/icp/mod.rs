@@ -10,13 +10,15 @@
 //! back), [`sample`] (stratified query points), `level` (one rung of the ladder:
 //! sample, run, judge), `iterate` (the loop on one screen: associate, weight,
 //! fit, converged), `robust` (roughness filter, Tukey weights), [`associate`]
-//! (exact grid NN matches, parallel over blocks).
+//! (exact grid NN matches, parallel over blocks), `restart` and `backward`
+//! (two checks of the answer whose gaps beyond the noise join its covariance).
 
 pub mod associate;
 mod backward;
 pub mod config;
 mod iterate;
 mod level;
+mod restart;
 pub mod result;
 mod robust;
 pub mod sample;
@@ -27,6 +29,7 @@ use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 pub use config::{IcpConfig, Metric};
 pub use result::{
     BackwardCheck, CentredPose, CentredSigma, IcpError, IcpResult, IcpStatus, NnStatsSummary,
+    RestartCheck,
 };
 
 /// Row-major 4x4 of a transform: [`crate::geo::rigid::to_rows`].
@@ -46,7 +49,9 @@ pub const AMBIGUOUS_COST_RATIO: f64 = 0.9;
 /// search ([`start`]) gives one start (or the best few when it is ambiguous);
 /// from each, levels from the coarsest useful one down to full resolution,
 /// each starting from the last one's estimate (a level that fails ends the
-/// ladder with its status). The start whose result fits best is kept.
+/// ladder with its status). The start whose result fits best is kept; the
+/// restart check (`restart`) and the backward check (`backward`) then
+/// widen its covariance where the data do not pin it down as its curvature says.
 pub fn register<R: Pyramid, M: Pyramid>(
     reference: &R,
     moving: &M,
@@ -67,6 +72,8 @@ pub fn register<R: Pyramid, M: Pyramid>(
         return Err(first_error.unwrap_or(IcpError::EmptyOverlap));
     }
     let forward = choose(tried, starts.ambiguity, starts.pixel_m);
+    let limits = (starts.pixel_m, starts.radius_m);
+    let forward = restart::check_restarts(reference, moving, config, forward, limits);
     Ok(check_backward(reference, moving, config, &starts, forward))
 }
 

@@ -94,7 +94,27 @@ pub struct IcpResult {
     /// beyond the two fits' noise is part of the covariance (see
     /// `icp::backward`).
     pub backward: Option<BackwardCheck>,
+    /// What the restart check (the full-resolution loop run again from the
+    /// answer pushed both ways along its weakest horizontal direction) found;
+    /// None when it did not run. Gaps beyond the noise are part of the
+    /// covariance (see `icp::restart`).
+    pub restart: Option<RestartCheck>,
     pub nn: NnStatsSummary,
+}
+
+/// The restart check of a pair (see `icp::restart`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct RestartCheck {
+    /// The largest gap between a restart's answer and the pair's, metres at
+    /// the fit's centroid.
+    pub gap_m: f64,
+    /// Restarts whose gap was beyond the noise (their gap is in the covariance).
+    pub beyond_noise: usize,
+    /// Restarts that ran to an answer (of two).
+    pub ran: usize,
+    /// How far the answer moved because both restarts settled together
+    /// elsewhere, metres at the fit's centroid (0: the ladder's answer stands).
+    pub moved_m: f64,
 }
 
 /// The forward answer against the inverse of the backward one, at the fit's centroid.

@@ -116,6 +116,16 @@ fn check_pair(size: u32, seed: u32, dsmgen_args: &[&str], tol: Tolerance) {
         // (issue 11: a gate that fires on well-posed pairs reweights the graph)
         let check = &doc["result"]["backward"];
         assert_eq!(check["beyond_noise"], false, "backward check {check}");
+        // both restarts, pushed two pixels off, came back within the noise:
+        // the answer and its sigmas stand
+        let restart = &doc["result"]["restart"];
+        assert_eq!(restart["ran"], 2, "restart check {restart}");
+        assert_eq!(restart["beyond_noise"], 0, "restart check {restart}");
+        assert_eq!(restart["moved_m"], 0.0, "restart check {restart}");
+        assert!(
+            restart["gap_m"].as_f64().unwrap() < 0.05,
+            "restart check {restart}"
+        );
         both.push(est);
         sigmas_yaw.push(sigma_yaw);
     }

@@ -1,0 +1,380 @@
+//! The restart check of a pair: the full-resolution loop run again from the
+//! answer pushed a few pixels along its weakest horizontal direction, once
+//! each way.
+//!
+//! A sandwich standard error is the curvature of the cost at the minimum the
+//! loop settled in. On a narrow strip of small city tiles that minimum is a
+//! notch in a shallow valley: started at the truth, the loop walks 0.4-1.8 m
+//! along the strip and reports 6-7 cm (20 x 20 grid of 128 m tiles,
+//! docs/measurements.md "Restart check"). Where the data pin the pair down, a
+//! restart a few pixels off comes back to the same place within its noise, and
+//! the answer and its covariance stand. Where it does not, the minimum is not
+//! unique at the claimed precision: the answer stays, and each restart's gap
+//! beyond the noise is added to the covariance along the gap (as the backward
+//! check does), so the graph learns from the pair only what it pins down.
+//! When both restarts settle together and away from the answer, the ladder sat
+//! in a side notch (it came in from one start): the place both sides fall
+//! into becomes the answer, with the restart's own information.
+
+use nalgebra::{Isometry3, Matrix2, Matrix6, Translation3, UnitQuaternion, Vector3};
+
+use super::backward::{inflate, Disagreement};
+use super::config::LADDER_SAMPLES;
+use super::level::Level;
+use super::start::moved_overlap;
+use super::{config, final_rule, IcpConfig, IcpError, IcpResult, IcpStatus, RestartCheck, Rules};
+use crate::fit::FitInformation;
+use crate::geo::rigid::isometry_to_world;
+use crate::grid::Pyramid;
+
+/// How far the restarts start from the answer: this many full-resolution
+/// pixels, or three of its standard errors along the direction if more.
+pub const RESTART_PIXELS: f64 = 2.0;
+
+/// The weakest measured horizontal direction of `result` (unit, x and y) and
+/// its standard error, metres; None without information or with both
+/// horizontal axes held.
+fn weakest_horizontal(result: &IcpResult) -> Option<(Vector3<f64>, f64)> {
+    let info = result.information.as_ref()?;
+    let c = info.covariance_6x6.fixed_view::<2, 2>(0, 0).into_owned();
+    let c: Matrix2<f64> = (c + c.transpose()) * 0.5;
+    let eig = c.symmetric_eigen();
+    let k = if eig.eigenvalues[0] >= eig.eigenvalues[1] {
+        0
+    } else {
+        1
+    };
+    let variance = eig.eigenvalues[k];
+    if !(variance > 0.0 && variance.is_finite()) {
+        return None;
+    }
+    let v = eig.eigenvectors.column(k);
+    Some((Vector3::new(v[0], v[1], 0.0), variance.sqrt()))
+}
+
+/// Runs the restart check on `forward` and folds it into its covariance.
+/// Only for answers with information that ran to an end (not diverged, not
+/// too few matches); a restart that cannot run is skipped.
+pub(super) fn check_restarts<R: Pyramid, M: Pyramid>(
+    reference: &R,
+    moving: &M,
+    config: &IcpConfig,
+    forward: IcpResult,
+    limits: (f64, f64),
+) -> IcpResult {
+    if matches!(
+        forward.status,
+        IcpStatus::TooFewInliers | IcpStatus::Diverged
+    ) {
+        return forward;
+    }
+    let Some((direction, sigma_m)) = weakest_horizontal(&forward) else {
+        return forward;
+    };
+    let step_m = (RESTART_PIXELS * limits.0).max(3.0 * sigma_m);
+    restart_by(
+        reference,
+        moving,
+        config,
+        forward,
+        (direction, step_m),
+        limits,
+    )
+}
+
+/// The restart check with pushes of `step_m` along `direction`.
+fn restart_by<R: Pyramid, M: Pyramid>(
+    reference: &R,
+    moving: &M,
+    config: &IcpConfig,
+    mut forward: IcpResult,
+    (direction, step_m): (Vector3<f64>, f64),
+    limits: (f64, f64),
+) -> IcpResult {
+    let Some(centroid) = forward.information.as_ref().map(|i| i.centroid) else {
+        return forward;
+    };
+    // a restart only asks where the loop settles: the ladder's sample count
+    // is plenty for that (its own covariance enters the test)
+    let config = &IcpConfig {
+        samples: config.samples.min(LADDER_SAMPLES),
+        ..config.clone()
+    };
+    let mut check = RestartCheck::default();
+    let mut restarts = Vec::with_capacity(2);
+    for sign in [1.0, -1.0] {
+        let push = direction * (sign * step_m);
+        match restart(reference, moving, config, &forward, &push, limits) {
+            Ok(r) if !matches!(r.status, IcpStatus::TooFewInliers | IcpStatus::Diverged) => {
+                restarts.push(r)
+            }
+            Ok(r) => tracing::debug!(status = ?r.status, "restart did not finish"),
+            Err(e) => tracing::debug!(error = %e, "restart could not run"),
+        }
+    }
+    check.ran = restarts.len();
+    // both restarts settle together and away from the answer: the ladder sat
+    // in a side notch, and the basin both sides fall into is the answer
+    if let [a, b] = &restarts[..] {
+        let apart = |x: &IcpResult, y: &IcpResult| {
+            gap(&x.t_ref_moving, &y.t_ref_moving, &centroid)
+                .shift_m
+                .norm()
+        };
+        // together: closer to each other than half their way from the answer
+        // (restarts that run out of iterations jitter beyond their noise)
+        let together = apart(a, b) < 0.5 * apart(&forward, a).min(apart(&forward, b));
+        if beyond_noise(&forward, a) && beyond_noise(&forward, b) && together {
+            let moved = gap(&forward.t_ref_moving, &a.t_ref_moving, &centroid);
+            check.moved_m = moved.shift_m.norm();
+            tracing::debug!(shift_m = ?moved.shift_m, "both restarts agree elsewhere");
+            let kept = b.clone();
+            forward = IcpResult {
+                ambiguity: forward.ambiguity,
+                iterations: forward.iterations + a.iterations,
+                ..a.clone()
+            };
+            restarts = vec![kept];
+        }
+    }
+    let Some(centroid) = forward.information.as_ref().map(|i| i.centroid) else {
+        return forward;
+    };
+    for restarted in &restarts {
+        let d = gap(&forward.t_ref_moving, &restarted.t_ref_moving, &centroid);
+        check.gap_m = check.gap_m.max(d.shift_m.norm());
+        let Some(info) = forward.information.as_mut() else {
+            break;
+        };
+        let test = d.test(&joint(info, restarted));
+        tracing::debug!(shift_m = ?d.shift_m, chi_square = test.chi_square, status = ?restarted.status, "restart");
+        if test.beyond_noise() {
+            check.beyond_noise += 1;
+            inflate(info, &d.model_error(&test));
+        }
+    }
+    forward.restart = Some(check);
+    forward
+}
+
+/// The yardstick of a gap between `fit` and a restart: the restart saw the
+/// same data, so under a unique minimum it comes back within the noise of one
+/// fit; the sum of the two covariances is the same lenient yardstick as the
+/// backward check's.
+fn joint(fit: &FitInformation, restarted: &IcpResult) -> Matrix6<f64> {
+    match &restarted.information {
+        Some(r) => fit.covariance_6x6 + r.covariance_6x6,
+        None => fit.covariance_6x6 * 2.0,
+    }
+}
+
+/// True when `other` ended beyond the noise of `fit` and itself (false
+/// without information to judge).
+fn beyond_noise(fit: &IcpResult, other: &IcpResult) -> bool {
+    let Some(info) = fit.information.as_ref() else {
+        return false;
+    };
+    gap(&fit.t_ref_moving, &other.t_ref_moving, &info.centroid)
+        .test(&joint(info, other))
+        .beyond_noise()
+}
+
+/// The left perturbation from `forward` to `other` at `at`: D = other
+/// forward^-1, its translation D(at) - at and its rotation vector.
+fn gap(forward: &Isometry3<f64>, other: &Isometry3<f64>, at: &Vector3<f64>) -> Disagreement {
+    let d = other * forward.inverse();
+    let p = nalgebra::Point3::from(*at);
+    Disagreement {
+        shift_m: d.transform_point(&p) - p,
+        rotation_rad: d.rotation.scaled_axis(),
+    }
+}
+
+/// The full-resolution level run from `forward` moved by `push` (metres), with
+/// the same rules as the last rung of the ladder.
+fn restart<R: Pyramid, M: Pyramid>(
+    reference: &R,
+    moving: &M,
+    config: &IcpConfig,
+    forward: &IcpResult,
+    push: &Vector3<f64>,
+    (pixel_m, radius_m): (f64, f64),
+) -> Result<IcpResult, IcpError> {
+    let start_world = Translation3::from(*push) * forward.t_ref_moving;
+    let centre = Vector3::from(forward.centre_m);
+    let shift = start_world.transform_point(&centre.into()).coords - centre;
+    let sampled = if shift.xy().norm() < config::PAPER_TAU_M {
+        Vector3::zeros()
+    } else {
+        shift
+    };
+    let overlap = moved_overlap(reference, moving, &sampled)?.ok_or(IcpError::NoOverlap)?;
+    let (centre_x, centre_y) = overlap.centre();
+    let origin_xy = Vector3::new(centre_x, centre_y, 0.0);
+    let level = Level::sample(reference, moving, 0, &overlap, &origin_xy, config)?;
+    let origin = level.origin(&origin_xy);
+    let t_start = isometry_to_world(&start_world, &-origin);
+    // the rotation prior is about the georeferencing, as on the ladder
+    let rules = Rules {
+        degeneracy: final_rule(pixel_m),
+        start: Isometry3::from_parts(t_start.translation, UnitQuaternion::identity()),
+        cap_m: radius_m + push.norm(),
+    };
+    let tau_m = config.tau_at(0, pixel_m, f64::NAN);
+    let outcome = level.run(&origin, t_start, tau_m, &rules)?;
+    let information = outcome.information(config, &final_rule(pixel_m));
+    Ok(outcome.into_result(&origin, information))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geo::GeoTransform;
+    use crate::grid::{MemGrid, MemPyramid};
+
+    fn result_with(covariance: Matrix6<f64>) -> IcpResult {
+        IcpResult {
+            t_ref_moving: Isometry3::identity(),
+            rmse_m: 0.1,
+            rmse_plane_m: 0.1,
+            inliers: 10,
+            samples: 10,
+            overlap: 1.0,
+            iterations: 3,
+            status: IcpStatus::Converged,
+            constraint_ratio: 1.0,
+            sigma: Default::default(),
+            centre_m: [0.0; 3],
+            degenerate: Vec::new(),
+            ambiguity: None,
+            backward: None,
+            restart: None,
+            nn: Default::default(),
+            information: Some(FitInformation {
+                info_6x6: Matrix6::zeros(),
+                covariance_6x6: covariance,
+                sigma: [None; 6],
+                degenerate: Vec::new(),
+                centroid: Vector3::zeros(),
+                effective_samples: 1.0,
+            }),
+        }
+    }
+
+    #[test]
+    fn the_weakest_horizontal_direction_is_the_largest_xy_variance() {
+        let mut c =
+            Matrix6::from_diagonal(&nalgebra::Vector6::new(0.01, 0.04, 1e-4, 1e-8, 1e-8, 1e-8));
+        let (d, s) = weakest_horizontal(&result_with(c)).unwrap();
+        assert!((d.y.abs() - 1.0).abs() < 1e-12 && d.x.abs() < 1e-12);
+        assert!((s - 0.2).abs() < 1e-12);
+        // a correlated pair: the diagonal's long axis
+        c[(0, 0)] = 0.02;
+        c[(1, 1)] = 0.02;
+        c[(0, 1)] = 0.015;
+        c[(1, 0)] = 0.015;
+        let (d, _) = weakest_horizontal(&result_with(c)).unwrap();
+        assert!((d.x * d.y - 0.5).abs() < 1e-9, "{d:?}");
+        // both horizontal axes held: nothing to push along
+        c.fixed_view_mut::<2, 2>(0, 0).fill(0.0);
+        assert!(weakest_horizontal(&result_with(c)).is_none());
+    }
+
+    /// A pair of 200 x 200 px DSMs at 0.5 m of `surface`, the moving one
+    /// 60 m east and written so that `shift` registers it.
+    fn pair(surface: fn(f64, f64) -> f64, shift: Vector3<f64>) -> (MemPyramid, MemPyramid) {
+        let make = |left: f64, t: Vector3<f64>| {
+            let gt = GeoTransform::north_up(left, 4_800_100.0, 0.5, 0.5);
+            MemGrid::from_fn(200, 200, gt, move |c, r| {
+                let (x, y) = gt.pixel_to_world(c as f64 + 0.5, r as f64 + 0.5);
+                (surface(x + t.x, y + t.y) - t.z) as f32
+            })
+        };
+        (
+            MemPyramid::build(make(500_000.0, Vector3::zeros()), 64),
+            MemPyramid::build(make(500_060.0, shift), 64),
+        )
+    }
+
+    /// Relief in both directions: one minimum.
+    fn hills(x: f64, y: f64) -> f64 {
+        5.0 * (x / 4.0).sin() * (y / 5.0).cos() + 3.0 * (y / 3.0 + x / 7.0).sin()
+    }
+
+    /// Ridges every 8 m along y over relief in x: minima 8 m apart in y.
+    fn ridges(x: f64, y: f64) -> f64 {
+        1.5 * (y * std::f64::consts::TAU / 8.0).sin() + 5.0 * (x / 9.0).sin()
+    }
+
+    fn restarted(surface: fn(f64, f64) -> f64, push_m: f64) -> (IcpResult, IcpResult) {
+        let truth = Vector3::new(0.3, -0.2, 0.4);
+        let (reference, moving) = pair(surface, truth);
+        // near the truth: the ridges repeat, the search would be ambiguous
+        let config = IcpConfig {
+            model: crate::fit::Model::Translation,
+            max_level: 0,
+            max_displacement_m: 1.0,
+            ..IcpConfig::default()
+        };
+        let forward = crate::icp::register(&reference, &moving, &config).unwrap();
+        let at = nalgebra::Point3::from(forward.information.as_ref().unwrap().centroid);
+        let shift = forward.t_ref_moving.transform_point(&at) - at;
+        assert!(
+            (shift - truth).norm() < 0.05,
+            "{shift:?} {:?} {:?} it {}",
+            forward.status,
+            forward.ambiguity,
+            forward.iterations
+        );
+        let checked = restart_by(
+            &reference,
+            &moving,
+            &config,
+            forward.clone(),
+            (Vector3::y(), push_m),
+            (0.5, 10.0),
+        );
+        (forward, checked)
+    }
+
+    #[test]
+    fn a_unique_minimum_keeps_its_answer_and_covariance() {
+        let (forward, checked) = restarted(hills, 1.0);
+        let check = checked.restart.unwrap();
+        assert_eq!((check.ran, check.beyond_noise), (2, 0), "{check:?}");
+        assert!(check.gap_m < 0.01, "{check:?}");
+        assert_eq!(checked.t_ref_moving, forward.t_ref_moving);
+        assert_eq!(checked.information, forward.information);
+    }
+
+    #[test]
+    fn a_restart_in_another_minimum_widens_the_sigma_along_the_gap() {
+        let (forward, checked) = restarted(ridges, 5.0);
+        let check = checked.restart.unwrap();
+        assert!(check.beyond_noise >= 1 && check.gap_m > 3.0, "{check:?}");
+        assert_eq!(checked.t_ref_moving, forward.t_ref_moving);
+        let sigma = |r: &IcpResult, k: usize| r.information.as_ref().unwrap().sigma[k].unwrap();
+        assert!(sigma(&forward, 1) < 0.1, "{:?}", forward.information);
+        assert!(sigma(&checked, 1) > 2.0, "{:?}", checked.information);
+        // the gap is along y: x and z keep nearly their noise
+        assert!(sigma(&checked, 0) < 3.0 * sigma(&forward, 0) + 0.05);
+    }
+
+    #[test]
+    fn the_gap_is_the_left_perturbation_at_the_centroid() {
+        let forward = Isometry3::from_parts(
+            Translation3::new(5.0, -3.0, 1.0),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, 0.01),
+        );
+        let d = Isometry3::from_parts(
+            Translation3::new(0.2, 0.0, 0.0),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, 0.001),
+        );
+        let at = Vector3::new(100.0, 50.0, 10.0);
+        // D about `at`: a rotation about it and then the shift
+        let about = Translation3::from(at) * d * Translation3::from(-at);
+        let g = gap(&forward, &(about * forward), &at);
+        assert!((g.shift_m - Vector3::new(0.2, 0.0, 0.0)).norm() < 1e-9);
+        assert!((g.rotation_rad - Vector3::new(0.0, 0.0, 0.001)).norm() < 1e-12);
+    }
+}
