@@ -22,9 +22,8 @@
 
 use nalgebra::{Isometry3, Matrix6, Vector3, Vector6};
 
-use super::level::Level;
-use super::start::moved_overlap;
-use super::{config, final_rule, BackwardCheck, IcpConfig, IcpError, IcpResult, Rules};
+use super::level::full_resolution;
+use super::{BackwardCheck, IcpConfig, IcpError, IcpResult};
 use crate::fit::FitInformation;
 use crate::geo::rigid::isometry_to_world;
 use crate::grid::Pyramid;
@@ -39,29 +38,17 @@ pub(super) fn register_backward<R: Pyramid, M: Pyramid>(
     forward: &IcpResult,
     (pixel_m, radius_m): (f64, f64),
 ) -> Result<IcpResult, IcpError> {
-    let t_start_world = forward.t_ref_moving.inverse();
+    let start = forward.t_ref_moving.inverse();
     let centre = Vector3::from(forward.centre_m);
-    let shift = t_start_world.transform_point(&centre.into()).coords - centre;
-    let sampled = if shift.xy().norm() < config::PAPER_TAU_M {
-        Vector3::zeros()
-    } else {
-        shift
-    };
-    let overlap = moved_overlap(moving, reference, &sampled)?.ok_or(IcpError::NoOverlap)?;
-    let (centre_x, centre_y) = overlap.centre();
-    let origin_xy = Vector3::new(centre_x, centre_y, 0.0);
-    let level = Level::sample(moving, reference, 0, &overlap, &origin_xy, config)?;
-    let origin = level.origin(&origin_xy);
-    let t_start = isometry_to_world(&t_start_world, &-origin);
-    let rules = Rules {
-        degeneracy: final_rule(pixel_m),
-        start: t_start,
-        cap_m: radius_m,
-    };
-    let tau_m = config.tau_at(0, pixel_m, f64::NAN);
-    let outcome = level.run(&origin, t_start, tau_m, &rules)?;
-    let information = outcome.information(config, &final_rule(pixel_m));
-    Ok(outcome.into_result(&origin, information))
+    // the rotation prior holds to the start, the inverse of the forward answer
+    full_resolution(
+        moving,
+        reference,
+        config,
+        (&start, start.rotation),
+        &centre,
+        (pixel_m, radius_m),
+    )
 }
 
 /// How far the forward answer and the inverse of the backward one are apart,

@@ -2,13 +2,15 @@
 //! match against the reference's same level, run the loop (first on an even
 //! subset of the samples, then on all of them), and judge how it ended.
 
-use nalgebra::{Isometry3, Vector3};
+use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 
 use super::associate::{block_order, Association, Matcher};
-use super::config::LADDER_SAMPLES;
+use super::config::{LADDER_SAMPLES, PAPER_TAU_M};
+use super::final_rule;
 use super::iterate::{iterate, Convergence, Phase, Rules};
 use super::robust::{smooth_only, weighted};
 use super::sample::{pixel_window, sample_overlap};
+use super::start::moved_overlap;
 use super::{IcpConfig, IcpError, IcpResult, IcpStatus, Metric, NnStatsSummary};
 use crate::fit::{fit_information_with, Correspondence, DegeneracyRule, FitInformation, FitSigma};
 use crate::geo::rigid::isometry_to_world;
@@ -307,6 +309,43 @@ impl LevelOutcome {
             },
         }
     }
+}
+
+/// The full-resolution level alone, run from `start_world` (a world transform
+/// taking `moving`'s points onto `reference`), with the ladder's last-rung
+/// rules: what the backward and restart checks run. `centre` is where the
+/// start's shift is judged (far starts sample the overlap where the moved DSM
+/// lands), `prior_about` the rotation the rotation prior holds to, and `cap_m`
+/// the largest shift from the start.
+pub(super) fn full_resolution<R: Pyramid, M: Pyramid>(
+    reference: &R,
+    moving: &M,
+    config: &IcpConfig,
+    (start_world, prior_about): (&Isometry3<f64>, UnitQuaternion<f64>),
+    centre: &Vector3<f64>,
+    (pixel_m, cap_m): (f64, f64),
+) -> Result<IcpResult, IcpError> {
+    let shift = start_world.transform_point(&(*centre).into()).coords - centre;
+    let sampled = if shift.xy().norm() < PAPER_TAU_M {
+        Vector3::zeros()
+    } else {
+        shift
+    };
+    let overlap = moved_overlap(reference, moving, &sampled)?.ok_or(IcpError::NoOverlap)?;
+    let (centre_x, centre_y) = overlap.centre();
+    let origin_xy = Vector3::new(centre_x, centre_y, 0.0);
+    let level = Level::sample(reference, moving, 0, &overlap, &origin_xy, config)?;
+    let origin = level.origin(&origin_xy);
+    let t_start = isometry_to_world(start_world, &-origin);
+    let rules = Rules {
+        degeneracy: final_rule(pixel_m),
+        start: Isometry3::from_parts(t_start.translation, prior_about),
+        cap_m,
+    };
+    let tau_m = config.tau_at(0, pixel_m, f64::NAN);
+    let outcome = level.run(&origin, t_start, tau_m, &rules)?;
+    let information = outcome.information(config, &final_rule(pixel_m));
+    Ok(outcome.into_result(&origin, information))
 }
 
 /// The coarsest level whose overlap is still at least 64 px on its short side.

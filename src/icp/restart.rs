@@ -20,11 +20,9 @@ use nalgebra::{Isometry3, Matrix2, Matrix6, Translation3, UnitQuaternion, Vector
 
 use super::backward::{inflate, Disagreement};
 use super::config::LADDER_SAMPLES;
-use super::level::Level;
-use super::start::moved_overlap;
-use super::{config, final_rule, IcpConfig, IcpError, IcpResult, IcpStatus, RestartCheck, Rules};
+use super::level::full_resolution;
+use super::{IcpConfig, IcpError, IcpResult, IcpStatus, RestartCheck};
 use crate::fit::FitInformation;
-use crate::geo::rigid::isometry_to_world;
 use crate::grid::Pyramid;
 
 /// How far the restarts start from the answer: this many full-resolution
@@ -200,30 +198,17 @@ fn restart<R: Pyramid, M: Pyramid>(
     push: &Vector3<f64>,
     (pixel_m, radius_m): (f64, f64),
 ) -> Result<IcpResult, IcpError> {
-    let start_world = Translation3::from(*push) * forward.t_ref_moving;
+    let start = Translation3::from(*push) * forward.t_ref_moving;
     let centre = Vector3::from(forward.centre_m);
-    let shift = start_world.transform_point(&centre.into()).coords - centre;
-    let sampled = if shift.xy().norm() < config::PAPER_TAU_M {
-        Vector3::zeros()
-    } else {
-        shift
-    };
-    let overlap = moved_overlap(reference, moving, &sampled)?.ok_or(IcpError::NoOverlap)?;
-    let (centre_x, centre_y) = overlap.centre();
-    let origin_xy = Vector3::new(centre_x, centre_y, 0.0);
-    let level = Level::sample(reference, moving, 0, &overlap, &origin_xy, config)?;
-    let origin = level.origin(&origin_xy);
-    let t_start = isometry_to_world(&start_world, &-origin);
-    // the rotation prior is about the georeferencing, as on the ladder
-    let rules = Rules {
-        degeneracy: final_rule(pixel_m),
-        start: Isometry3::from_parts(t_start.translation, UnitQuaternion::identity()),
-        cap_m: radius_m + push.norm(),
-    };
-    let tau_m = config.tau_at(0, pixel_m, f64::NAN);
-    let outcome = level.run(&origin, t_start, tau_m, &rules)?;
-    let information = outcome.information(config, &final_rule(pixel_m));
-    Ok(outcome.into_result(&origin, information))
+    // the rotation prior holds to the georeferencing, as on the ladder
+    full_resolution(
+        reference,
+        moving,
+        config,
+        (&start, UnitQuaternion::identity()),
+        &centre,
+        (pixel_m, radius_m + push.norm()),
+    )
 }
 
 #[cfg(test)]
