@@ -209,25 +209,7 @@ mod tests {
             * t_raw
             * Isometry3::translation(-s_mov.x, -s_mov.y, -s_mov.z);
         assert!((delta.translation.vector - Vector3::new(1.0, 0.0, -1.0)).norm() < 1e-12);
-        let r = IcpResult {
-            t_ref_moving: delta,
-            rmse_m: 0.1,
-            rmse_plane_m: 0.1,
-            inliers: 10,
-            samples: 10,
-            overlap: 1.0,
-            iterations: 3,
-            status: crate::icp::IcpStatus::Converged,
-            constraint_ratio: 1.0,
-            sigma: Default::default(),
-            information: None,
-            centre_m: [10.0, 0.0, 0.0],
-            degenerate: Vec::new(),
-            ambiguity: None,
-            backward: None,
-            restart: None,
-            nn: Default::default(),
-        };
+        let r = IcpResult::converged_at(delta, [10.0, 0.0, 0.0]);
         let raw = to_raw_frames(r, &s_ref, &s_mov);
         assert!((raw.t_ref_moving.translation.vector - t_raw.translation.vector).norm() < 1e-12);
         assert_eq!(raw.centre_m, [9.5, 0.0, 0.0]);

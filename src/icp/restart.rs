@@ -219,22 +219,6 @@ mod tests {
 
     fn result_with(covariance: Matrix6<f64>) -> IcpResult {
         IcpResult {
-            t_ref_moving: Isometry3::identity(),
-            rmse_m: 0.1,
-            rmse_plane_m: 0.1,
-            inliers: 10,
-            samples: 10,
-            overlap: 1.0,
-            iterations: 3,
-            status: IcpStatus::Converged,
-            constraint_ratio: 1.0,
-            sigma: Default::default(),
-            centre_m: [0.0; 3],
-            degenerate: Vec::new(),
-            ambiguity: None,
-            backward: None,
-            restart: None,
-            nn: Default::default(),
             information: Some(FitInformation {
                 info_6x6: Matrix6::zeros(),
                 covariance_6x6: covariance,
@@ -243,6 +227,7 @@ mod tests {
                 centroid: Vector3::zeros(),
                 effective_samples: 1.0,
             }),
+            ..IcpResult::converged_at(Isometry3::identity(), [0.0; 3])
         }
     }
 

@@ -139,6 +139,31 @@ pub struct NnStatsSummary {
 }
 
 impl IcpResult {
+    /// A converged result at `t_ref_moving` measured about `centre_m`, with
+    /// nothing else known (tests build on it).
+    #[cfg(test)]
+    pub(crate) fn converged_at(t_ref_moving: Isometry3<f64>, centre_m: [f64; 3]) -> Self {
+        IcpResult {
+            t_ref_moving,
+            rmse_m: 0.1,
+            rmse_plane_m: 0.1,
+            inliers: 10,
+            samples: 10,
+            overlap: 1.0,
+            iterations: 3,
+            status: IcpStatus::Converged,
+            constraint_ratio: 1.0,
+            sigma: Default::default(),
+            information: None,
+            centre_m,
+            degenerate: Vec::new(),
+            ambiguity: None,
+            backward: None,
+            restart: None,
+            nn: Default::default(),
+        }
+    }
+
     /// True when the transform is measured in every direction and can be used
     /// at full weight: `Converged` only. (Before the degeneracy-aware ICP,
     /// `MaxIterations` counted too; it no longer does.)
