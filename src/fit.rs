@@ -44,6 +44,12 @@ pub struct Correspondence {
     pub reference: Vector3<f64>,
     pub normal: Vector3<f64>,
     pub weight: f64,
+    /// Variance of each horizontal component of `normal` that is noise of the
+    /// reference heights it was fitted to (0: an exact normal). The final
+    /// information takes it out (errors in variables, see
+    /// [`information`]): a flat, noisy strip's random normals otherwise pass
+    /// for information along the strip.
+    pub normal_var: f64,
 }
 
 impl Correspondence {
@@ -266,6 +272,7 @@ mod tests {
                     reference: *p,
                     normal: *n,
                     weight: 1.0,
+                    normal_var: 0.0,
                 })
                 .collect();
             let fit = point_to_point(&corrs, Model::Rigid).unwrap();
@@ -289,6 +296,7 @@ mod tests {
                     reference: *p,
                     normal: *n,
                     weight: 1.0,
+                    normal_var: 0.0,
                 })
                 .collect();
             let step = point_to_plane(&corrs, Model::Rigid).unwrap();
@@ -313,6 +321,7 @@ mod tests {
                         reference: *p,
                         normal: *n,
                         weight: 1.0,
+                        normal_var: 0.0,
                     })
                     .collect();
                 let fit = point_to_plane(&corrs, Model::Rigid).unwrap();
@@ -365,6 +374,7 @@ mod tests {
                     reference: p,
                     normal: Vector3::z(),
                     weight: 1.0,
+                    normal_var: 0.0,
                 }
             })
             .collect();

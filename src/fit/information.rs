@@ -332,8 +332,15 @@ pub fn fit_information_with(
 ) -> Option<FitInformation> {
     let eq = NormalEquations::new(corrs, rule.cluster_cell_m)?.with_rotation_prior(prior);
     let (eig, keep) = constrained_directions(&eq, model, rule);
-    let scaled = sandwich(&eig, &keep, &restrict(&eq.clustered, model));
-    let independent = sandwich(&eig, &keep, &restrict(&eq.meat, model));
+    // Covariance with the normals' noise taken out of H and the meat (eiv.rs).
+    let (h_noise, meat_noise) = eiv::noise_terms(corrs, &eq.centroid, eq.radius_m);
+    let inverse = eiv::corrected_inverse(&eig, &keep, &restrict(&(eq.h - h_noise), model));
+    let sandwich_of = |meat: &Matrix6<f64>| {
+        let meat = eiv::positive_part(&restrict(&(meat - meat_noise), model));
+        inverse * meat * inverse
+    };
+    let scaled = sandwich_of(&eq.clustered);
+    let independent = sandwich_of(&eq.meat);
     // (rx, ry, rz, tx, ty, tz) scaled -> (x, y, z, roll, pitch, yaw) physical
     let mut to_physical = Matrix6::zeros();
     for k in 0..3 {
@@ -399,6 +406,8 @@ fn kept_inverse(
     let full = &u * inverse * u.transpose();
     Matrix6::from_fn(|r, c| full[(r, c)])
 }
+
+mod eiv;
 
 #[cfg(test)]
 mod tests;

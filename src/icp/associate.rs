@@ -80,6 +80,7 @@ pub fn associate<P: Pyramid>(
         reference: Vector3::zeros(),
         normal: Vector3::z(),
         weight: 1.0,
+        normal_var: 0.0,
     };
     let mut all = Association {
         corrs: vec![unmatched; points.len()],
@@ -167,18 +168,19 @@ fn match_query<P, G: Grid>(
     if n.distance_m > matcher.tau_m {
         return None;
     }
-    let (reference, normal, roughness_m) = match matcher.metric {
+    let (reference, normal, roughness_m, normal_var) = match matcher.metric {
         Metric::PointToSurface => {
             let s = surface_below_memo(grid, frame, q, memo)?;
-            (s.point, s.normal, s.roughness_m)
+            (s.point, s.normal, s.roughness_m, s.normal_var)
         }
-        _ => (n.point, normal_at(grid, frame, n.col, n.row), 0.0),
+        _ => (n.point, normal_at(grid, frame, n.col, n.row), 0.0, 0.0),
     };
     let corr = Correspondence {
         moving: *q,
         reference,
         normal,
         weight: 1.0,
+        normal_var,
     };
     Some((corr, n.distance_m, roughness_m))
 }

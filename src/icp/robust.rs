@@ -55,6 +55,7 @@ mod tests {
             reference: Vector3::zeros(),
             normal: Vector3::z(),
             weight: 1.0,
+            normal_var: 0.0,
         }
     }
 

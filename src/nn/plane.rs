@@ -16,6 +16,9 @@ pub(super) struct Plane {
     pub b: f64,
     /// RMS height residual of the pixels kept by the fit (roughness).
     pub rms_m: f64,
+    /// Variance of the fitted slopes (mean of a's and b's) that the residual
+    /// spread implies: how much of the normal's tilt is noise.
+    pub slope_var: f64,
 }
 
 impl Plane {
@@ -120,5 +123,7 @@ fn fit_plane(pts: &[(f64, f64, f64)], keep: &[bool]) -> Option<Plane> {
         a,
         b,
         rms_m: (sum_sq / n).sqrt(),
+        // Var(a) = s^2 cyy / det, Var(b) = s^2 cxx / det, s^2 on n - 3 dof.
+        slope_var: sum_sq / (n - 3.0) * 0.5 * (cxx + cyy) / det,
     })
 }

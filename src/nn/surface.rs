@@ -15,6 +15,9 @@ pub struct SurfacePoint {
     pub normal: Vector3<f64>,
     /// RMS deviation of the neighbourhood from the fitted plane (walls, crowns).
     pub roughness_m: f64,
+    /// Variance of each horizontal component of `normal` that is noise of
+    /// the ring's heights (see [`crate::fit::Correspondence::normal_var`]).
+    pub normal_var: f64,
 }
 
 /// The reference surface right below a query: the bilinear height of the four
@@ -101,6 +104,7 @@ pub fn surface_below_memo<G: Grid + ?Sized>(
         point,
         normal: plane.normal(),
         roughness_m: plane.rms_m,
+        normal_var: plane.slope_var / (1.0 + plane.a * plane.a + plane.b * plane.b),
     })
 }
 

@@ -123,6 +123,7 @@ impl Truth {
                     reference: (est * c).xyz() - origin,
                     normal: Vector3::z(),
                     weight: 1.0,
+                    normal_var: 0.0,
                 });
             }
         }

@@ -161,6 +161,7 @@ pub fn associate(
                             reference,
                             normal: Vector3::z(),
                             weight: 1.0,
+                            normal_var: 0.0,
                         },
                         d,
                     ))
@@ -317,6 +318,7 @@ mod tests {
             reference: Vector3::zeros(),
             normal: Vector3::z(),
             weight: 1.0,
+            normal_var: 0.0,
         };
         let w = tukey(vec![c(0.1), c(0.1), c(0.12), c(50.0)]);
         assert!(w[0].weight > 0.9 && w[3].weight == 0.0);
