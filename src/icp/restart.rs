@@ -18,7 +18,7 @@
 
 use nalgebra::{Isometry3, Matrix2, Matrix6, Translation3, UnitQuaternion, Vector3};
 
-use super::backward::{inflate, Disagreement};
+use super::backward::{inflate, Disagreement, GapTest};
 use super::config::LADDER_SAMPLES;
 use super::level::full_resolution;
 use super::{IcpConfig, IcpError, IcpResult, IcpStatus, RestartCheck};
@@ -28,6 +28,8 @@ use crate::grid::Pyramid;
 /// How far the restarts start from the answer: this many full-resolution
 /// pixels, or three of its standard errors along the direction if more.
 pub const RESTART_PIXELS: f64 = 2.0;
+/// Restart gaps below this many pixels are the loop's convergence scatter.
+pub const MIN_GAP_PIXELS: f64 = 0.1;
 
 /// The weakest measured horizontal direction of `result` (unit, x and y) and
 /// its standard error, metres; None without information or with both
@@ -149,16 +151,22 @@ fn restart_by<R: Pyramid, M: Pyramid>(
         if test.beyond_noise() {
             check.beyond_noise += 1;
         }
-        // A restart sees the same data and samples as the answer, so under one
-        // minimum it comes back to it (well-posed pairs: within micrometres);
-        // any gap the noise does not cover is a direction the cost hardly
-        // rises along, and joins the covariance.
-        if test.chi_square > 1.0 {
+        if widens(&test, d.shift_m.norm(), limits.0) {
             inflate(info, &d.model_error(&test));
         }
     }
     forward.restart = Some(check);
     forward
+}
+
+/// Whether a restart gap of `gap_m` joins the covariance. A restart sees the
+/// same data and samples as the answer, so under one minimum it comes back to
+/// it (well-posed pairs: within micrometres): a gap of a tenth of a pixel or
+/// more that the noise does not cover (chi-square above 1) is a direction the
+/// cost hardly rises along. Smaller gaps are the loop's convergence scatter,
+/// unless beyond the noise.
+fn widens(test: &GapTest, gap_m: f64, pixel_m: f64) -> bool {
+    test.beyond_noise() || (test.chi_square > 1.0 && gap_m >= MIN_GAP_PIXELS * pixel_m)
 }
 
 /// The yardstick of a gap between `fit` and a restart: the restart saw the
@@ -222,6 +230,18 @@ mod tests {
     use super::*;
     use crate::geo::GeoTransform;
     use crate::grid::{MemGrid, MemPyramid};
+
+    /// Gaps within the 0.999 quantile widen the sigmas once they exceed the
+    /// noise (chi-square > 1) and a tenth of a pixel; micrometre scatter and
+    /// gaps the noise covers do not; gaps beyond the noise always do.
+    #[test]
+    fn which_restart_gaps_widen_the_sigmas() {
+        let test = |chi_square: f64| GapTest { chi_square, dof: 6 };
+        assert!(widens(&test(10.9), 0.98, 0.5), "a metre at 3.3 sigma");
+        assert!(!widens(&test(10.9), 1e-6, 0.5), "convergence scatter");
+        assert!(!widens(&test(0.8), 0.3, 0.5), "within one sigma");
+        assert!(widens(&test(63.6), 1e-6, 0.5), "beyond the noise");
+    }
 
     fn result_with(covariance: Matrix6<f64>) -> IcpResult {
         IcpResult {
