@@ -393,14 +393,25 @@ fn kept_inverse(
     keep: &[bool; 6],
     cov: &Matrix6<f64>,
 ) -> Matrix6<f64> {
+    on_kept(eig, keep, cov, |reduced| reduced.try_inverse())
+}
+
+/// `m` reduced to the span of the kept eigen-directions (U^T m U), mapped by
+/// `invert` and taken back (U f(U^T m U) U^T); zero when nothing is kept or
+/// `invert` gives None.
+fn on_kept(
+    eig: &SymmetricEigen<f64, nalgebra::U6>,
+    keep: &[bool; 6],
+    m: &Matrix6<f64>,
+    invert: impl FnOnce(DMatrix<f64>) -> Option<DMatrix<f64>>,
+) -> Matrix6<f64> {
     let kept: Vec<usize> = (0..6).filter(|&k| keep[k]).collect();
     if kept.is_empty() {
         return Matrix6::zeros();
     }
     let u = DMatrix::from_fn(6, kept.len(), |r, c| eig.eigenvectors[(r, kept[c])]);
-    let cov = DMatrix::from_fn(6, 6, |r, c| cov[(r, c)]);
-    let reduced = u.transpose() * &cov * &u;
-    let Some(inverse) = reduced.try_inverse() else {
+    let m = DMatrix::from_fn(6, 6, |r, c| m[(r, c)]);
+    let Some(inverse) = invert(u.transpose() * &m * &u) else {
         return Matrix6::zeros();
     };
     let full = &u * inverse * u.transpose();

@@ -49,20 +49,12 @@ pub(super) fn corrected_inverse(
     keep: &[bool; 6],
     h: &Matrix6<f64>,
 ) -> Matrix6<f64> {
-    let kept: Vec<usize> = (0..6).filter(|&k| keep[k]).collect();
-    if kept.is_empty() {
-        return Matrix6::zeros();
-    }
-    let u = DMatrix::from_fn(6, kept.len(), |r, c| eig.eigenvectors[(r, kept[c])]);
-    let hd = DMatrix::from_fn(6, 6, |r, c| h[(r, c)]);
-    let reduced = u.transpose() * hd * &u;
-    let reduced = (&reduced + reduced.transpose()) * 0.5;
-    let e = reduced.symmetric_eigen();
-    let floor = FLOOR * e.eigenvalues.max().max(f64::MIN_POSITIVE);
-    let inv_vals = e.eigenvalues.map(|v| 1.0 / v.max(floor));
-    let inverse = &e.eigenvectors * DMatrix::from_diagonal(&inv_vals) * e.eigenvectors.transpose();
-    let full = &u * inverse * u.transpose();
-    Matrix6::from_fn(|r, c| full[(r, c)])
+    super::on_kept(eig, keep, h, |reduced| {
+        let e = ((&reduced + reduced.transpose()) * 0.5).symmetric_eigen();
+        let floor = FLOOR * e.eigenvalues.max().max(f64::MIN_POSITIVE);
+        let inv_vals = e.eigenvalues.map(|v| 1.0 / v.max(floor));
+        Some(&e.eigenvectors * DMatrix::from_diagonal(&inv_vals) * e.eigenvectors.transpose())
+    })
 }
 
 /// `m` with its negative eigenvalues set to zero.
