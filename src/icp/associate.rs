@@ -8,6 +8,7 @@
 use nalgebra::{Isometry3, Point3, Vector3};
 use rayon::prelude::*;
 
+use super::robust::Cell;
 use super::Metric;
 use crate::fit::Correspondence;
 use crate::grid::{Grid, GridError, Pyramid};
@@ -22,8 +23,8 @@ pub struct Association {
     pub corrs: Vec<Correspondence>,
     /// NN distance of each inlier, same order as `corrs`.
     pub distances_m: Vec<f64>,
-    /// Roughness of the reference surface at each inlier (0 unless point-to-surface).
-    pub roughness_m: Vec<f64>,
+    /// The reference surface at each inlier (zero unless point-to-surface).
+    pub cells: Vec<Cell>,
     /// Queries with a valid reference pixel right below them.
     pub with_reference_below: usize,
     pub queries: usize,
@@ -85,7 +86,7 @@ pub fn associate<P: Pyramid>(
     let mut all = Association {
         corrs: vec![unmatched; points.len()],
         distances_m: vec![f64::NAN; points.len()],
-        roughness_m: vec![0.0; points.len()],
+        cells: vec![Cell::default(); points.len()],
         queries: points.len(),
         ..Default::default()
     };
@@ -94,12 +95,12 @@ pub fn associate<P: Pyramid>(
         .zip(memo.par_chunks_mut(BLOCK))
         .zip(all.corrs.par_chunks_mut(BLOCK))
         .zip(all.distances_m.par_chunks_mut(BLOCK))
-        .zip(all.roughness_m.par_chunks_mut(BLOCK))
-        .map(|((((block, memo), corrs), distances_m), roughness_m)| {
+        .zip(all.cells.par_chunks_mut(BLOCK))
+        .map(|((((block, memo), corrs), distances_m), cells)| {
             let slots = Slots {
                 corrs,
                 distances_m,
-                roughness_m,
+                cells,
             };
             match_block(matcher, block, memo, t_ref_moving, slots)
         })
@@ -118,7 +119,7 @@ struct Slots<'s> {
     corrs: &'s mut [Correspondence],
     /// NaN while unmatched.
     distances_m: &'s mut [f64],
-    roughness_m: &'s mut [f64],
+    cells: &'s mut [Cell],
 }
 
 /// Matches one block of queries through its own view of the reference level;
@@ -138,14 +139,13 @@ fn match_block<P: Pyramid>(
         if !grid.get(c.floor() as i64, r.floor() as i64).is_nan() {
             below += 1;
         }
-        let Some((corr, distance_m, roughness_m)) =
-            match_query(&mut grid, matcher, &q, memo, &mut nn)
+        let Some((corr, distance_m, cell)) = match_query(&mut grid, matcher, &q, memo, &mut nn)
         else {
             continue;
         };
         slots.corrs[i] = corr;
         slots.distances_m[i] = distance_m;
-        slots.roughness_m[i] = roughness_m;
+        slots.cells[i] = cell;
     }
     if let Some(e) = grid.take_error() {
         return Err(e);
@@ -155,25 +155,35 @@ fn match_block<P: Pyramid>(
 
 /// The correspondence of one query `q` (reference frame, local): its exact
 /// NN within tau, then the reference point and normal of the metric; with the
-/// NN distance and the surface roughness there.
+/// NN distance and the reference cell there.
 fn match_query<P, G: Grid>(
     grid: &mut G,
     matcher: &Matcher<'_, P>,
     q: &Vector3<f64>,
     memo: &mut PlaneMemo,
     nn: &mut NnStats,
-) -> Option<(Correspondence, f64, f64)> {
+) -> Option<(Correspondence, f64, Cell)> {
     let frame = &matcher.frame;
     let n = nearest(grid, frame, q, matcher.tau_m, nn)?;
     if n.distance_m > matcher.tau_m {
         return None;
     }
-    let (reference, normal, roughness_m, normal_var) = match matcher.metric {
+    let (reference, normal, cell, normal_var) = match matcher.metric {
         Metric::PointToSurface => {
             let s = surface_below_memo(grid, frame, q, memo)?;
-            (s.point, s.normal, s.roughness_m, s.normal_var)
+            let cell = Cell {
+                roughness_m: s.roughness_m,
+                var_m2: s.cell_var_m2,
+                band_m: s.cell_band_m,
+            };
+            (s.point, s.normal, cell, s.normal_var)
         }
-        _ => (n.point, normal_at(grid, frame, n.col, n.row), 0.0, 0.0),
+        _ => (
+            n.point,
+            normal_at(grid, frame, n.col, n.row),
+            Cell::default(),
+            0.0,
+        ),
     };
     let corr = Correspondence {
         moving: *q,
@@ -182,7 +192,7 @@ fn match_query<P, G: Grid>(
         weight: 1.0,
         normal_var,
     };
-    Some((corr, n.distance_m, roughness_m))
+    Some((corr, n.distance_m, cell))
 }
 
 impl Association {
@@ -194,12 +204,12 @@ impl Association {
             if self.distances_m[i].is_finite() {
                 self.corrs[kept] = self.corrs[i];
                 self.distances_m[kept] = self.distances_m[i];
-                self.roughness_m[kept] = self.roughness_m[i];
+                self.cells[kept] = self.cells[i];
                 kept += 1;
             }
         }
         self.corrs.truncate(kept);
         self.distances_m.truncate(kept);
-        self.roughness_m.truncate(kept);
+        self.cells.truncate(kept);
     }
 }

@@ -98,11 +98,9 @@ pub(super) fn iterate(
             break;
         }
         phase.peak_inliers = phase.peak_inliers.max(assoc.corrs.len());
-        // 2. weight: rough places out, Tukey biweights on the residuals
-        let corrs = weighted(
-            smooth_only(assoc.corrs, &assoc.roughness_m, config.max_roughness_m),
-            config.metric,
-        );
+        // 2. weight: rough places out, Tukey biweights outside each cell's band
+        let (corrs, cells) = smooth_only(assoc.corrs, &assoc.cells, config.max_roughness_m);
+        let corrs = weighted(corrs, &cells, config.metric);
         // 3. fit the update that brings the matches together
         let prior = config.rotation_prior(&t_ref_moving, &rules.start);
         let Some(step) = fit(&corrs, config, &rules.degeneracy, prior.as_ref()) else {

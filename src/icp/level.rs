@@ -251,10 +251,8 @@ impl LevelOutcome {
             return None;
         }
         let a = &self.final_association;
-        let corrs = weighted(
-            smooth_only(a.corrs.clone(), &a.roughness_m, config.max_roughness_m),
-            config.metric,
-        );
+        let (corrs, cells) = smooth_only(a.corrs.clone(), &a.cells, config.max_roughness_m);
+        let corrs = weighted(corrs, &cells, config.metric);
         let prior = config.rotation_prior(&self.t_ref_moving, &self.start);
         fit_information_with(&corrs, config.model, rule, prior.as_ref())
     }

@@ -15,6 +15,17 @@ pub struct SurfacePoint {
     pub normal: Vector3<f64>,
     /// RMS deviation of the neighbourhood from the fitted plane (walls, crowns).
     pub roughness_m: f64,
+    /// How far the bilinear height may be from the true one: the variance,
+    /// over the four pixels with their bilinear weights, of their departures
+    /// from the ring's plane. Where the cell holds a step (a wall whose
+    /// position within the cell its pixels do not tell), the true height under
+    /// the query is one side or the other, and this is the variance of that
+    /// guess (h^2 f (1 - f) for a step of h at fraction f); on a smooth slope
+    /// it is the pixel noise's share, whatever the slope.
+    pub cell_var_m2: f64,
+    /// Largest distance of one of those departures from their weighted mean:
+    /// the band of residuals a query height consistent with the cell can have.
+    pub cell_band_m: f64,
     /// Variance of each horizontal component of `normal` that is noise of
     /// the ring's heights (see [`crate::fit::Correspondence::normal_var`]).
     pub normal_var: f64,
@@ -88,24 +99,42 @@ pub fn surface_below_memo<G: Grid + ?Sized>(
     // The four interpolated pixels must lie on the ring's plane: a spike or a
     // wall among them makes the bilinear height meaningless.
     let limit_m = (4.0 * plane.rms_m).max(0.5);
-    for (c, r, hv) in [
-        (c0, r0, h00),
-        (c0 + 1, r0, h10),
-        (c0, r0 + 1, h01),
-        (c0 + 1, r0 + 1, h11),
-    ] {
+    let pixels = [
+        (c0, r0, h00, (1.0 - fx) * (1.0 - fy)),
+        (c0 + 1, r0, h10, fx * (1.0 - fy)),
+        (c0, r0 + 1, h01, (1.0 - fx) * fy),
+        (c0 + 1, r0 + 1, h11, fx * fy),
+    ];
+    let mut departure_m = [0.0f64; 4];
+    for (k, &(c, r, hv, _)) in pixels.iter().enumerate() {
         let dx = (c - col) as f64 * frame.gsd_x_m();
         let dy = -((r - row) as f64) * frame.gsd_y_m();
-        if (hv - plane.height_at(dx, dy)).abs() > limit_m {
+        departure_m[k] = hv - plane.height_at(dx, dy);
+        if departure_m[k].abs() > limit_m {
             return None;
         }
     }
+    let (cell_var_m2, cell_band_m) = cell_spread(&pixels.map(|p| p.3), &departure_m);
     Some(SurfacePoint {
         point,
         normal: plane.normal(),
         roughness_m: plane.rms_m,
+        cell_var_m2,
+        cell_band_m,
         normal_var: plane.slope_var / (1.0 + plane.a * plane.a + plane.b * plane.b),
     })
+}
+
+/// The variance and the band of [`SurfacePoint`] from the four pixels'
+/// bilinear weights and their departures from the ring plane.
+fn cell_spread(weights: &[f64; 4], departure_m: &[f64; 4]) -> (f64, f64) {
+    let mean: f64 = weights.iter().zip(departure_m).map(|(w, d)| w * d).sum();
+    let (mut var, mut band) = (0.0f64, 0.0f64);
+    for (w, d) in weights.iter().zip(departure_m) {
+        var += w * (d - mean).powi(2);
+        band = band.max((d - mean).abs());
+    }
+    (var, band)
 }
 
 /// Pixel radius of the plane fitted for normals: a 7 x 7 window keeps the
@@ -145,5 +174,23 @@ mod tests {
         let n = normal_at(&mut grid, &frame, 4, 4);
         let expected = Vector3::new(0.0, -0.3, 1.0).normalize();
         assert!((n - expected).norm() < 1e-6, "{n:?}");
+    }
+
+    /// A wall through the cell: the guess is one side or the other (variance
+    /// h^2 f (1 - f), band h max(f, 1 - f)); a plane, however steep, leaves
+    /// no departures and nothing to guess.
+    #[test]
+    fn a_step_in_the_cell_is_a_guess_a_slope_is_not() {
+        let f: f64 = 0.2;
+        // query at fraction f across the cell; the two right pixels are 3 m up
+        let weights = [(1.0 - f) * 0.5, f * 0.5, (1.0 - f) * 0.5, f * 0.5];
+        let (var, band) = cell_spread(&weights, &[0.0, 3.0, 0.0, 3.0]);
+        assert!((var - 9.0 * f * (1.0 - f)).abs() < 1e-12, "{var}");
+        assert!((band - 3.0 * (1.0 - f)).abs() < 1e-12, "{band}");
+        // the same heights on the ring's plane (a steep slope): no departures
+        assert_eq!(cell_spread(&weights, &[0.0; 4]), (0.0, 0.0));
+        // a constant offset from the plane is no guess either
+        let (var, band) = cell_spread(&weights, &[0.4; 4]);
+        assert!(var < 1e-24 && band < 1e-12);
     }
 }
