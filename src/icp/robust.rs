@@ -73,21 +73,22 @@ pub(super) fn weighted(
     let band_share = kappa.sqrt();
     for (i, corr) in corrs.iter_mut().enumerate() {
         let cell = cells.get(i).copied().unwrap_or_default();
-        // the cell's band and variance are heights; the residual is along the normal
-        let nz = corr.normal.z.abs();
-        let var = cell.var_m2 * nz * nz;
-        // a cell whose pixels depart from its plane by no more than the noise
-        // holds no step: its residual is judged as it is
-        let (band, var) = if var > noise_var {
-            (band_share * cell.band_m * nz, kappa * var)
-        } else {
-            (0.0, 0.0)
-        };
+        let (band, var) = step_of(corr, &cell, noise_var)
+            .map_or((0.0, 0.0), |(band, var)| (band_share * band, kappa * var));
         let u = (residual(corr) - band).max(0.0) / c;
         let tukey = if u < 1.0 { (1.0 - u * u).powi(2) } else { 0.0 };
         corr.weight = tukey * noise_var / (noise_var + var);
     }
     corrs
+}
+
+/// The band and variance of a cell that holds a step, along the match's
+/// normal (they are heights; the residual is along the normal); None for a
+/// cell whose pixels depart from its plane by no more than the noise.
+fn step_of(corr: &Correspondence, cell: &Cell, noise_var: f64) -> Option<(f64, f64)> {
+    let nz = corr.normal.z.abs();
+    let var = cell.var_m2 * nz * nz;
+    (var > noise_var).then_some((cell.band_m * nz, var))
 }
 
 /// How much of the cells' guess variance the residuals show, in [0, 1]: the
@@ -106,12 +107,10 @@ fn guess_share(
     let noise_var = sigma * sigma;
     let (mut excess, mut guess) = (0.0, 0.0);
     for (corr, cell) in corrs.iter().zip(cells) {
-        let nz = corr.normal.z.abs();
-        let var = cell.var_m2 * nz * nz;
-        if var <= noise_var {
+        let Some((band, var)) = step_of(corr, cell, noise_var) else {
             continue;
-        }
-        let r = residual(corr).min(cell.band_m * nz + 3.0 * sigma);
+        };
+        let r = residual(corr).min(band + 3.0 * sigma);
         excess += r * r - noise_var;
         guess += var;
     }
