@@ -7,7 +7,7 @@ use std::collections::HashSet;
 use super::scene::{SceneGraph, WeightsUsed};
 use super::solve::PoseSolution;
 use super::AlignConfig;
-use crate::averaging::NodeStatus;
+use crate::averaging::{NodeSigma, NodeStatus};
 use crate::icp::IcpStatus;
 use crate::pipeline::PairOutcome;
 use crate::poses::rigid::to_world;
@@ -63,12 +63,16 @@ pub fn poses_file(parts: &Parts<'_>) -> PosesFile {
         .map(|(k, m)| PoseEntry {
             id: dsms[k].id.clone(),
             matrix_world: to_world(m, &scene.origin_world),
-            sigma: solution.sigma.as_ref().map(|s| s[k]).filter(|s| {
-                s.shift_m
-                    .iter()
-                    .chain(&s.rotation_deg)
-                    .all(|v| v.is_finite())
-            }),
+            sigma: solution
+                .sigma
+                .as_ref()
+                .map(|s| with_gridding_floor(s[k], &dsms[k], parts.config))
+                .filter(|s| {
+                    s.shift_m
+                        .iter()
+                        .chain(&s.rotation_deg)
+                        .all(|v| v.is_finite())
+                }),
             status: solution
                 .status
                 .as_ref()
@@ -178,4 +182,21 @@ pub fn weights_warning(weights: &WeightsUsed, tree: bool) -> Option<String> {
     Some(
         "some pairs have no standard errors (journaled by an older version, or --metric point-to-point): paper weights used".into(),
     )
+}
+
+/// A pose's sigma with its DSM's share of the gridding floor on its shift
+/// ([`crate::icp::floor::pose_floor_m`]): the graph weighs the fits' own
+/// covariances, and each DSM's placement error is shared by all its pairs.
+fn with_gridding_floor(
+    mut sigma: NodeSigma,
+    dsm: &crate::store::catalog::DsmMeta,
+    config: &AlignConfig,
+) -> NodeSigma {
+    let gt = &dsm.geotransform;
+    let pixel_m = gt.gsd_x().max(gt.gsd_y());
+    let floor = crate::icp::floor::pose_floor_m(pixel_m, config.pipeline.icp.sigma_floor_px);
+    for (s, f) in sigma.shift_m.iter_mut().zip(floor) {
+        *s = s.hypot(f);
+    }
+    sigma
 }

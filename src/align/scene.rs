@@ -266,6 +266,7 @@ mod tests {
             covariance,
             centroid_world: [1.0, 2.0, 3.0],
             degenerate: vec![Axis::X, Axis::Yaw],
+            gridding: None,
         };
         let info =
             edge_information(&fit(IcpStatus::MaxIterations, Some(p)), &edge, Model::Rigid).unwrap();

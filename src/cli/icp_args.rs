@@ -105,6 +105,11 @@ pub struct IcpArgs {
     /// georeferenced rotation; `inf` for none.
     #[arg(long, default_value_t = defaults().rotation_prior_deg)]
     pub rotation_prior_deg: f64,
+    /// Gridding floor of each pair's horizontal standard errors, in pixels of
+    /// the coarser DSM: gridded DSMs place walls to about 1/20 pixel, an error
+    /// the whole overlap shares and no fit statistic sees; 0 for none.
+    #[arg(long, default_value_t = defaults().sigma_floor_px)]
+    pub sigma_floor_px: f64,
 }
 
 impl Default for IcpArgs {
@@ -122,6 +127,7 @@ impl Default for IcpArgs {
             seed: d.seed,
             max_roughness: d.max_roughness_m,
             rotation_prior_deg: d.rotation_prior_deg,
+            sigma_floor_px: d.sigma_floor_px,
         }
     }
 }
@@ -139,9 +145,10 @@ impl IcpArgs {
             || !positive(self.max_displacement)
             || !(self.max_roughness > 0.0)
             || !(self.rotation_prior_deg > 0.0)
+            || !(self.sigma_floor_px >= 0.0)
         {
             return Err(InputError::new(
-                "--tau, --samples, --max-iter, --max-displacement, --max-roughness and --rotation-prior-deg must be positive",
+                "--tau, --samples, --max-iter, --max-displacement, --max-roughness and --rotation-prior-deg must be positive, --sigma-floor-px not negative",
             )
             .into());
         }
@@ -156,6 +163,7 @@ impl IcpArgs {
             max_level: self.max_level,
             max_roughness_m: self.max_roughness,
             rotation_prior_deg: self.rotation_prior_deg,
+            sigma_floor_px: self.sigma_floor_px,
             ..defaults()
         })
     }

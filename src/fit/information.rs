@@ -108,6 +108,14 @@ pub struct FitInformation {
     /// Correspondences over the factor by which correlation inflates the variance
     /// (trace of the clustered over the independent sandwich).
     pub effective_samples: f64,
+    /// RMS distance of the points from the centroid, metres (the
+    /// lever that turns a rotation into an arc).
+    pub radius_m: f64,
+    /// The gridding floor ([`crate::icp::floor`]): a covariance the reported
+    /// standard errors add to the fit's (zero until the ICP sets it). The graph
+    /// weighs the fit's own covariance: the floor is mostly each DSM's own
+    /// placement error, shared by all its pairs.
+    pub gridding_6x6: Matrix6<f64>,
 }
 
 impl FitInformation {
@@ -117,6 +125,27 @@ impl FitInformation {
 
     pub fn is_degenerate(&self, axis: Axis) -> bool {
         self.degenerate.contains(&axis)
+    }
+
+    /// The covariance as reported: the fit's plus the gridding floor.
+    pub fn reported_covariance(&self) -> Matrix6<f64> {
+        self.covariance_6x6 + self.gridding_6x6
+    }
+
+    /// Standard errors as reported (with the gridding floor), in the units of
+    /// [`FitInformation::sigma`] and None where it is None.
+    pub fn reported_sigma(&self) -> [Option<f64>; 6] {
+        let c = self.reported_covariance();
+        std::array::from_fn(|k| {
+            self.sigma[k].map(|_| {
+                let sd = c[(k, k)].max(0.0).sqrt();
+                if k < 3 {
+                    sd
+                } else {
+                    sd.to_degrees()
+                }
+            })
+        })
     }
 }
 
@@ -378,6 +407,8 @@ pub fn fit_information_with(
         degenerate,
         centroid: eq.centroid,
         effective_samples: corrs.len() as f64 / ratio.max(1e-12),
+        radius_m: eq.radius_m,
+        gridding_6x6: Matrix6::zeros(),
     })
 }
 

@@ -193,7 +193,7 @@ pub(crate) fn inflate(info: &mut FitInformation, extra: &Matrix6<f64>) {
 const EMPTY: f64 = 1e-12;
 
 /// The orthogonal projector onto the directions `c` gives a variance.
-fn range_projector(c: &Matrix6<f64>) -> Matrix6<f64> {
+pub(super) fn range_projector(c: &Matrix6<f64>) -> Matrix6<f64> {
     let eig = c.symmetric_eigen();
     let max = eig.eigenvalues.amax();
     let mut p = Matrix6::zeros();
@@ -293,6 +293,8 @@ mod tests {
             degenerate: Vec::new(),
             centroid,
             effective_samples: 100.0,
+            radius_m: 100.0,
+            gridding_6x6: Matrix6::zeros(),
         }
     }
 
@@ -331,6 +333,8 @@ mod tests {
             degenerate: vec![Axis::Z],
             centroid: Vector3::zeros(),
             effective_samples: 100.0,
+            radius_m: 100.0,
+            gridding_6x6: Matrix6::zeros(),
         };
         inflate(
             &mut info,

@@ -48,6 +48,9 @@ pub struct IcpConfig {
     /// (infinite: none); see [`crate::fit::RotationPrior`] and
     /// [`DEFAULT_ROTATION_PRIOR_DEG`].
     pub rotation_prior_deg: f64,
+    /// Gridding floor added to the horizontal variances, pixels of the coarser
+    /// DSM (see [`super::floor`]); 0: none.
+    pub sigma_floor_px: f64,
 }
 
 impl Default for IcpConfig {
@@ -64,6 +67,7 @@ impl Default for IcpConfig {
             tolerance_m: 1e-4,
             max_roughness_m: 1.0,
             rotation_prior_deg: DEFAULT_ROTATION_PRIOR_DEG,
+            sigma_floor_px: super::floor::DEFAULT_SIGMA_FLOOR_PX,
         }
     }
 }

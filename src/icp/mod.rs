@@ -16,6 +16,7 @@
 pub mod associate;
 mod backward;
 pub mod config;
+pub mod floor;
 mod iterate;
 mod level;
 mod restart;
@@ -74,7 +75,11 @@ pub fn register<R: Pyramid, M: Pyramid>(
     let forward = choose(tried, starts.ambiguity, starts.pixel_m);
     let limits = (starts.pixel_m, starts.radius_m);
     let forward = restart::check_restarts(reference, moving, config, forward, limits);
-    Ok(check_backward(reference, moving, config, &starts, forward))
+    let mut result = check_backward(reference, moving, config, &starts, forward);
+    if let Some(info) = result.information.as_mut() {
+        floor::apply(info, starts.pixel_m, config.sigma_floor_px);
+    }
+    Ok(result)
 }
 
 /// The forward answer reconciled with the backward check ([`backward`]):

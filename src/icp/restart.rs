@@ -252,6 +252,8 @@ mod tests {
                 degenerate: Vec::new(),
                 centroid: Vector3::zeros(),
                 effective_samples: 1.0,
+                radius_m: 100.0,
+                gridding_6x6: Matrix6::zeros(),
             }),
             ..IcpResult::converged_at(Isometry3::identity(), [0.0; 3])
         }

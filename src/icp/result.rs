@@ -211,7 +211,7 @@ impl IcpResult {
         let sigma = self
             .information
             .as_ref()
-            .map(|i| i.sigma)
+            .map(|i| i.reported_sigma())
             .unwrap_or([None; 6]);
         CentredPose {
             centre_m: self.centre_m,

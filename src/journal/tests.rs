@@ -63,6 +63,11 @@ fn outcome(i: usize) -> PairOutcome {
                     }),
                     centroid_world: [500_000.25, 4_000_000.5, 101.125],
                     degenerate: vec![Axis::X, Axis::Yaw],
+                    gridding: (i % 4 == 1).then(|| {
+                        std::array::from_fn(|r| {
+                            std::array::from_fn(|c| if r == c && r < 2 { 6.25e-4 } else { 0.0 })
+                        })
+                    }),
                 })
             }),
         },

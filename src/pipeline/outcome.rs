@@ -44,6 +44,10 @@ pub struct PairInformation {
     /// Axes along which the fit learned nothing (held at their initial value).
     #[serde(default)]
     pub degenerate: Vec<Axis>,
+    /// The gridding floor the reported sigmas add (row-major, same units;
+    /// see [`crate::icp::floor`]); absent in journals written before it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gridding: Option<[[f64; 6]; 6]>,
 }
 
 impl PairInformation {
@@ -53,11 +57,23 @@ impl PairInformation {
             covariance: std::array::from_fn(|r| std::array::from_fn(|k| c[(r, k)])),
             centroid_world: [info.centroid.x, info.centroid.y, info.centroid.z],
             degenerate: info.degenerate.clone(),
+            gridding: (info.gridding_6x6.amax() > 0.0).then(|| {
+                let g = &info.gridding_6x6;
+                std::array::from_fn(|r| std::array::from_fn(|k| g[(r, k)]))
+            }),
         }
     }
 
     pub fn covariance_6x6(&self) -> Matrix6<f64> {
         Matrix6::from_fn(|r, c| self.covariance[r][c])
+    }
+
+    /// The covariance as reported: the fit's plus the gridding floor.
+    pub fn reported_covariance_6x6(&self) -> Matrix6<f64> {
+        let g = self
+            .gridding
+            .map_or_else(Matrix6::zeros, |g| Matrix6::from_fn(|r, c| g[r][c]));
+        self.covariance_6x6() + g
     }
 
     pub fn centroid(&self) -> Vector3<f64> {
@@ -66,10 +82,14 @@ impl PairInformation {
 
     /// Finite numbers, a symmetric covariance with no negative variance.
     pub fn is_valid(&self) -> bool {
-        let c = self.covariance_6x6();
-        c.iter().chain(&self.centroid_world).all(|v| v.is_finite())
-            && (c - c.transpose()).amax() <= 1e-9 * c.amax().max(1e-300)
-            && (0..6).all(|k| c[(k, k)] >= 0.0)
+        let valid = |c: Matrix6<f64>| {
+            c.iter().all(|v| v.is_finite())
+                && (c - c.transpose()).amax() <= 1e-9 * c.amax().max(1e-300)
+                && (0..6).all(|k| c[(k, k)] >= 0.0)
+        };
+        self.centroid_world.iter().all(|v| v.is_finite())
+            && valid(self.covariance_6x6())
+            && valid(self.reported_covariance_6x6())
     }
 }
 

@@ -76,13 +76,17 @@ impl Truth {
             rv.y.to_degrees(),
             rv.z.to_degrees(),
         ];
+        // as reported (with the gridding floor), None where the fit held the axis
+        let reported = record
+            .information
+            .as_ref()
+            .map(|info| info.reported_covariance_6x6());
         let sigma = std::array::from_fn(|k| {
             let v = record.information.as_ref()?.covariance[k][k];
-            let s = if v > HELD_VARIANCE {
-                v.sqrt()
-            } else {
+            if v <= HELD_VARIANCE {
                 return None;
-            };
+            }
+            let s = reported?[(k, k)].sqrt();
             Some(if k < 3 { s } else { s.to_degrees() })
         });
         Some(EdgeError {
@@ -196,6 +200,7 @@ mod tests {
                 covariance,
                 centroid_world: [c.x, c.y, c.z],
                 degenerate: vec![],
+                gridding: None,
             }),
             note: None,
         };
