@@ -105,9 +105,10 @@ pub struct IcpArgs {
     /// georeferenced rotation; `inf` for none.
     #[arg(long, default_value_t = defaults().rotation_prior_deg)]
     pub rotation_prior_deg: f64,
-    /// Gridding floor of each pair's horizontal standard errors, in pixels of
-    /// the coarser DSM: gridded DSMs place walls to about 1/20 pixel, an error
-    /// the whole overlap shares and no fit statistic sees; 0 for none.
+    /// Gridding floor of each pair's reported standard errors, in pixels of
+    /// the coarser DSM on x and y (shares of it on the other axes): gridded
+    /// DSMs place walls to about 1/20 pixel, an error the whole overlap shares
+    /// and no fit statistic sees; 0 for none.
     #[arg(long, default_value_t = defaults().sigma_floor_px)]
     pub sigma_floor_px: f64,
 }

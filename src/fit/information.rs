@@ -136,16 +136,18 @@ impl FitInformation {
     /// [`FitInformation::sigma`] and None where it is None.
     pub fn reported_sigma(&self) -> [Option<f64>; 6] {
         let c = self.reported_covariance();
-        std::array::from_fn(|k| {
-            self.sigma[k].map(|_| {
-                let sd = c[(k, k)].max(0.0).sqrt();
-                if k < 3 {
-                    sd
-                } else {
-                    sd.to_degrees()
-                }
-            })
-        })
+        std::array::from_fn(|k| self.sigma[k].map(|_| standard_error(&c, k)))
+    }
+}
+
+/// The standard error of parameter `k` of a covariance in (x, y, z [m], roll,
+/// pitch, yaw [rad]): metres for the shifts, degrees for the rotations.
+pub fn standard_error(covariance: &Matrix6<f64>, k: usize) -> f64 {
+    let sd = covariance[(k, k)].max(0.0).sqrt();
+    if k < 3 {
+        sd
+    } else {
+        sd.to_degrees()
     }
 }
 
@@ -391,8 +393,7 @@ pub fn fit_information_with(
     for a in Axis::ALL {
         let k = a.index();
         if estimated(k) && !degenerate.contains(&a) {
-            let sd = covariance[(k, k)].max(0.0).sqrt();
-            sigma[k] = Some(if k < 3 { sd } else { sd.to_degrees() });
+            sigma[k] = Some(standard_error(&covariance, k));
         }
     }
     let info = {

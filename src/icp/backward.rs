@@ -24,6 +24,7 @@ use nalgebra::{Isometry3, Matrix6, Vector3, Vector6};
 
 use super::level::full_resolution;
 use super::{BackwardCheck, IcpConfig, IcpError, IcpResult};
+use crate::fit::information::standard_error;
 use crate::fit::FitInformation;
 use crate::geo::rigid::isometry_to_world;
 use crate::grid::Pyramid;
@@ -183,8 +184,7 @@ pub(crate) fn inflate(info: &mut FitInformation, extra: &Matrix6<f64>) {
     info.info_6x6 = pseudo_inverse(&info.covariance_6x6).0;
     for k in 0..6 {
         if info.sigma[k].is_some() {
-            let sd = info.covariance_6x6[(k, k)].max(0.0).sqrt();
-            info.sigma[k] = Some(if k < 3 { sd } else { sd.to_degrees() });
+            info.sigma[k] = Some(standard_error(&info.covariance_6x6, k));
         }
     }
 }

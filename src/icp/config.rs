@@ -48,8 +48,9 @@ pub struct IcpConfig {
     /// (infinite: none); see [`crate::fit::RotationPrior`] and
     /// [`DEFAULT_ROTATION_PRIOR_DEG`].
     pub rotation_prior_deg: f64,
-    /// Gridding floor added to the horizontal variances, pixels of the coarser
-    /// DSM (see [`super::floor`]); 0: none.
+    /// Gridding floor of the reported standard errors, pixels of the coarser
+    /// DSM on x and y, shares of it on the other axes (see [`super::floor`]);
+    /// 0: none.
     pub sigma_floor_px: f64,
 }
 

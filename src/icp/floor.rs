@@ -72,20 +72,14 @@ pub fn pose_floor_m(pixel_m: f64, k_px: f64) -> [f64; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::fit::information::standard_error;
     use crate::fit::Axis;
     use nalgebra::{Vector3, Vector6};
 
     fn information(variances: [f64; 6], held: &[Axis]) -> FitInformation {
         let covariance = Matrix6::from_diagonal(&Vector6::from(variances));
         let sigma = std::array::from_fn(|k| {
-            (!held.iter().any(|a| a.index() == k)).then(|| {
-                let sd = variances[k].sqrt();
-                if k < 3 {
-                    sd
-                } else {
-                    sd.to_degrees()
-                }
-            })
+            (!held.iter().any(|a| a.index() == k)).then(|| standard_error(&covariance, k))
         });
         FitInformation {
             info_6x6: Matrix6::from_diagonal(&Vector6::from(variances.map(|v| {
