@@ -192,8 +192,7 @@ fn with_gridding_floor(
     dsm: &crate::store::catalog::DsmMeta,
     config: &AlignConfig,
 ) -> NodeSigma {
-    let gt = &dsm.geotransform;
-    let pixel_m = gt.gsd_x().max(gt.gsd_y());
+    let pixel_m = dsm.geotransform.pixel_m();
     let floor = crate::icp::floor::pose_floor_m(pixel_m, config.pipeline.icp.sigma_floor_px);
     for (s, f) in sigma.shift_m.iter_mut().zip(floor) {
         *s = s.hypot(f);

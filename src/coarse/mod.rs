@@ -137,7 +137,7 @@ pub fn estimate<R: Pyramid, M: Pyramid>(
     for l in 0..levels {
         let g = reference.open_level(l).map_err(read)?.geotransform();
         let h = moving.open_level(l).map_err(read)?.geotransform();
-        let p = g.gsd_x().max(h.gsd_x()).max(g.gsd_y()).max(h.gsd_y());
+        let p = g.pixel_m().max(h.pixel_m());
         pixel_m.push(p);
         side_px.push((reach[2] - reach[0]).min(reach[3] - reach[1]) / p);
     }

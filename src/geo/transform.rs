@@ -33,6 +33,11 @@ impl GeoTransform {
         -self.0[5]
     }
 
+    /// The coarser of the pixel's width and height (CRS units).
+    pub fn pixel_m(&self) -> f64 {
+        self.gsd_x().max(self.gsd_y())
+    }
+
     /// World coordinates of a continuous pixel position (0,0 = outer top-left corner).
     pub fn pixel_to_world(&self, col: f64, row: f64) -> (f64, f64) {
         let g = &self.0;

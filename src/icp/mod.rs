@@ -222,7 +222,7 @@ fn level_pixel_m<R: Pyramid>(reference: &R, index: usize) -> Result<f64, IcpErro
         .open_level(index)
         .map_err(IcpError::Read)?
         .geotransform();
-    Ok(gt.gsd_x().max(gt.gsd_y()))
+    Ok(gt.pixel_m())
 }
 
 /// Which directions the loop holds on overview `index`: on the overviews only

@@ -51,7 +51,7 @@ pub fn find_starts<R: Pyramid, M: Pyramid>(
         .map_err(IcpError::Read)?
         .geotransform();
     let h = moving.open_level(0).map_err(IcpError::Read)?.geotransform();
-    let pixel_m = g.gsd_x().max(h.gsd_x()).max(g.gsd_y()).max(h.gsd_y());
+    let pixel_m = g.pixel_m().max(h.pixel_m());
     // Two DSMs are a pair where their footprints and data meet as georeferenced;
     // the search then looks for the best fit around that.
     let nominal =
@@ -137,7 +137,7 @@ fn has_common_data<R: Pyramid, M: Pyramid>(
     let mut level = 0;
     for l in (0..levels).rev() {
         let gt = moving.open_level(l).map_err(IcpError::Read)?.geotransform();
-        if side_m / gt.gsd_x().max(gt.gsd_y()) >= 16.0 {
+        if side_m / gt.pixel_m() >= 16.0 {
             level = l;
             break;
         }

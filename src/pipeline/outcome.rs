@@ -52,27 +52,21 @@ pub struct PairInformation {
 
 impl PairInformation {
     pub fn from_fit(info: &FitInformation) -> Self {
-        let c = &info.covariance_6x6;
         PairInformation {
-            covariance: std::array::from_fn(|r| std::array::from_fn(|k| c[(r, k)])),
+            covariance: rows(&info.covariance_6x6),
             centroid_world: [info.centroid.x, info.centroid.y, info.centroid.z],
             degenerate: info.degenerate.clone(),
-            gridding: (info.gridding_6x6.amax() > 0.0).then(|| {
-                let g = &info.gridding_6x6;
-                std::array::from_fn(|r| std::array::from_fn(|k| g[(r, k)]))
-            }),
+            gridding: (info.gridding_6x6.amax() > 0.0).then(|| rows(&info.gridding_6x6)),
         }
     }
 
     pub fn covariance_6x6(&self) -> Matrix6<f64> {
-        Matrix6::from_fn(|r, c| self.covariance[r][c])
+        matrix(&self.covariance)
     }
 
     /// The covariance as reported: the fit's plus the gridding floor.
     pub fn reported_covariance_6x6(&self) -> Matrix6<f64> {
-        let g = self
-            .gridding
-            .map_or_else(Matrix6::zeros, |g| Matrix6::from_fn(|r, c| g[r][c]));
+        let g = self.gridding.as_ref().map_or_else(Matrix6::zeros, matrix);
         self.covariance_6x6() + g
     }
 
@@ -91,6 +85,16 @@ impl PairInformation {
             && valid(self.covariance_6x6())
             && valid(self.reported_covariance_6x6())
     }
+}
+
+/// A 6x6 as journaled (row-major).
+fn rows(m: &Matrix6<f64>) -> [[f64; 6]; 6] {
+    std::array::from_fn(|r| std::array::from_fn(|c| m[(r, c)]))
+}
+
+/// A journaled row-major 6x6.
+fn matrix(rows: &[[f64; 6]; 6]) -> Matrix6<f64> {
+    Matrix6::from_fn(|r, c| rows[r][c])
 }
 
 impl IcpFit {

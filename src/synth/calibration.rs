@@ -12,6 +12,7 @@ use nalgebra::{Matrix4, Point3, Rotation3};
 use serde::Serialize;
 
 use super::output::Truth;
+use crate::fit::information::standard_error;
 use crate::geo::rigid::from_rows;
 use crate::icp::IcpStatus;
 use crate::journal::EdgeRecord;
@@ -86,8 +87,7 @@ impl Truth {
             if v <= HELD_VARIANCE {
                 return None;
             }
-            let s = reported?[(k, k)].sqrt();
-            Some(if k < 3 { s } else { s.to_degrees() })
+            Some(standard_error(&reported?, k))
         });
         Some(EdgeError {
             reference: record.reference.clone(),
