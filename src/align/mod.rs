@@ -147,7 +147,8 @@ pub fn align(
         }
     };
     let scene = scene::build_graph(store, &outcomes, config)?;
-    let mut solution = solve::solve(&scene, config.graph, plan.anchor)?;
+    let prior_deg = config.pipeline.icp.rotation_prior_deg;
+    let mut solution = solve::solve(&scene, config.graph, plan.anchor, prior_deg)?;
     if config.pipeline.icp.model == crate::fit::Model::Translation {
         scene::hold_rotations(store, &scene.origin_world, &mut solution.poses_local);
     }

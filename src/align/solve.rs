@@ -38,20 +38,31 @@ pub struct PoseSolution {
 }
 
 /// Solves the poses of `scene` with the chosen graph and gauge.
+/// `rotation_prior_deg`: one-sigma prior on each DSM's rotation about its
+/// georeferencing (information averaging only; infinite: none).
 pub fn solve(
     scene: &SceneGraph,
     graph: GraphKind,
     anchor: Option<usize>,
+    rotation_prior_deg: f64,
 ) -> Result<PoseSolution, AlignError> {
     match graph {
-        GraphKind::Full => solve_full(scene, anchor),
+        GraphKind::Full => solve_full(scene, anchor, rotation_prior_deg),
         GraphKind::Mst => solve_mst(scene, anchor),
     }
 }
 
-fn solve_full(scene: &SceneGraph, anchor: Option<usize>) -> Result<PoseSolution, AlignError> {
+fn solve_full(
+    scene: &SceneGraph,
+    anchor: Option<usize>,
+    rotation_prior_deg: f64,
+) -> Result<PoseSolution, AlignError> {
     if let Some(information) = &scene.information {
-        return solve_informed(scene, information, anchor);
+        let options = InformedOptions {
+            rotation_prior_rad: rotation_prior_deg.to_radians(),
+            ..InformedOptions::default()
+        };
+        return solve_informed(scene, information, anchor, &options);
     }
     let weights = scene.weights.used;
     let options = AveragingOptions {
@@ -86,8 +97,9 @@ fn solve_informed(
     scene: &SceneGraph,
     information: &[EdgeInformation],
     anchor: Option<usize>,
+    options: &InformedOptions,
 ) -> Result<PoseSolution, AlignError> {
-    let informed = average_informed(&scene.graph, information, &InformedOptions::default())
+    let informed = average_informed(&scene.graph, information, options)
         .map_err(|e| AlignError::Averaging(e.to_string()))?;
     let mut result = informed.averaging;
     for members in &result.components {

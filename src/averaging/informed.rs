@@ -161,6 +161,11 @@ pub struct InformedOptions {
     /// information (isotropic), so a node seen only along some axes stays solvable.
     pub floor_of_median: f64,
     pub covariance: CovarianceMethod,
+    /// One-sigma prior on each node's rotation about the identity (its
+    /// georeferencing), radians per axis; infinite: none. Held in the joint
+    /// steps: on a grid of small tiles the pairs' yaws, each known to a few
+    /// hundredths of a degree, otherwise add up across the grid.
+    pub rotation_prior_rad: f64,
     /// A node whose shift sigma exceeds this (metres) is `Weak`.
     pub weak_sigma_m: f64,
     /// ... or whose rotation sigma exceeds this (degrees).
@@ -185,6 +190,7 @@ impl Default for InformedOptions {
             joint_steps: 2,
             floor_of_median: 1e-6,
             covariance: CovarianceMethod::default(),
+            rotation_prior_rad: f64::INFINITY,
             weak_sigma_m: 1.0,
             weak_sigma_deg: 0.5,
         }

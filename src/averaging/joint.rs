@@ -53,6 +53,9 @@ struct JointSystem {
     prior: (f64, f64),
     /// Node pivots (world), for the coarse space.
     pivots: Vec<Vector3<f64>>,
+    /// The rotation prior's weight (rad^-2, 0: none) and each node's rotation
+    /// vector: a pseudo-observation that each rotation is the identity.
+    anchor: (f64, Vec<Vector3<f64>>),
 }
 
 /// The coarse space of the preconditioner: nodes grouped into aggregates of
@@ -95,7 +98,10 @@ pub(crate) struct JointReport {
 }
 
 /// `steps` Gauss-Newton steps on all poses at once, edges weighted by
-/// `active` (0: left out), each solved to `tolerance`. Poses change in place.
+/// `active` (0: left out), each solved to `tolerance`, each node's rotation
+/// held near the identity (its georeferencing) with one-sigma
+/// `rotation_prior_rad` per axis (infinite: free). Poses change in place.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn joint_refine(
     graph: &PoseGraph,
     omegas: &[Matrix6<f64>],
@@ -104,6 +110,7 @@ pub(crate) fn joint_refine(
     translations: &mut [Vector3<f64>],
     steps: usize,
     tolerance: StepTolerance,
+    rotation_prior_rad: f64,
 ) -> JointReport {
     let mut report = JointReport {
         cg_iterations: 0,
@@ -111,7 +118,8 @@ pub(crate) fn joint_refine(
     };
     for _ in 0..steps {
         let pivots = pivots(graph, active, rotations, translations);
-        let system = linearise(graph, omegas, active, rotations, translations, &pivots);
+        let mut system = linearise(graph, omegas, active, rotations, translations, &pivots);
+        system.hold_rotations(rotations, rotation_prior_rad);
         let rhs = system.gradient();
         let (delta, iterations, converged) = system.solve(&rhs, tolerance);
         report.cg_iterations += iterations;
@@ -239,6 +247,7 @@ fn linearise(
         edges,
         prior,
         pivots: pivots.to_vec(),
+        anchor: (0.0, Vec::new()),
     }
 }
 
@@ -267,6 +276,17 @@ fn morton(v: &Vector3<f64>, lo: &Vector3<f64>, hi: &Vector3<f64>) -> u64 {
 }
 
 impl JointSystem {
+    /// Adds the rotation prior (see [`joint_refine`]) at `rotations`; an
+    /// infinite or non-positive sigma adds nothing.
+    fn hold_rotations(&mut self, rotations: &[Matrix3<f64>], sigma_rad: f64) {
+        if !(sigma_rad > 0.0 && sigma_rad.is_finite()) {
+            return;
+        }
+        let weight = sigma_rad.powi(-2);
+        self.prior.0 += weight;
+        self.anchor = (weight, rotations.iter().map(rotation_vector).collect());
+    }
+
     fn prior_of(&self) -> Vector6<f64> {
         let (r, t) = self.prior;
         Vector6::new(r, r, r, t, t, t)
@@ -288,6 +308,10 @@ impl JointSystem {
     /// -J^T Omega r0: the right-hand side of the Gauss-Newton step.
     fn gradient(&self) -> Vec<Vector6<f64>> {
         let mut out = vec![Vector6::zeros(); self.n];
+        let (weight, held) = &self.anchor;
+        for (o, w) in out.iter_mut().zip(held) {
+            o.fixed_rows_mut::<3>(0).copy_from(&(-w * *weight));
+        }
         for e in &self.edges {
             let w = e.omega * e.r0;
             out[e.i] -= e.a_i.tr_mul(&w);

@@ -102,7 +102,9 @@ pub struct IcpArgs {
     pub max_roughness: f64,
     /// One-sigma prior on each pair's rotation about its start, degrees per
     /// axis: directions a narrow or flat overlap barely sees stay near the
-    /// georeferenced rotation; `inf` for none.
+    /// georeferenced rotation; `align` also holds each DSM's rotation about
+    /// its georeferencing with it, so small yaws do not add up across a grid;
+    /// `inf` for none.
     #[arg(long, default_value_t = defaults().rotation_prior_deg)]
     pub rotation_prior_deg: f64,
     /// Gridding floor of each pair's reported standard errors, in pixels of

@@ -88,6 +88,7 @@ pub(super) fn refine(
             translations,
             options.joint_steps,
             tolerance,
+            options.rotation_prior_rad,
         );
         iterations += joint.cg_iterations;
     }

@@ -404,6 +404,7 @@ fn joint_steps_recover_exact_poses_from_a_perturbed_start() {
                 chi2_per_unknown: 0.0,
                 max_iter: 10_000,
             },
+            f64::INFINITY,
         );
         let mut est: Vec<Matrix4<f64>> = rotations
             .iter()

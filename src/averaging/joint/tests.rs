@@ -127,3 +127,58 @@ fn selected_inversion_gives_the_dense_joint_marginals() {
         }
     }
 }
+
+/// Two DSMs, one edge whose yaw (0.1 deg) is known to 0.1 deg: free, the
+/// joint steps keep the edge's yaw; with each rotation held about the
+/// identity to 0.05 deg, the least-squares compromise splits it as
+/// (0.1 - 2a)^2 / 0.1^2 + 2 a^2 / 0.05^2, minimal at a = 0.1 / 6 per node.
+#[test]
+fn the_rotation_prior_holds_each_node_about_the_identity() {
+    let yaw = 0.1f64.to_radians();
+    let m = crate::poses::rigid::from_parts(
+        &rotation_from_axis_angle(&Vector3::new(0.0, 0.0, yaw)),
+        &Vector3::new(100.0, 0.0, 0.0),
+    );
+    let mut graph = PoseGraph::new(2);
+    let mut edge = crate::graph::Edge::new(0, 1, m, 0.3, 0.1);
+    edge.centre_j = Vector3::new(-50.0, 0.0, 0.0);
+    graph.edges.push(edge);
+    let mut omega = Matrix6::zeros();
+    omega
+        .fixed_view_mut::<3, 3>(0, 0)
+        .copy_from(&(Matrix3::identity() / yaw.powi(2)));
+    omega
+        .fixed_view_mut::<3, 3>(3, 3)
+        .copy_from(&(Matrix3::identity() / 0.01f64.powi(2)));
+    let tight = StepTolerance {
+        relative: 1e-12,
+        chi2_per_unknown: 0.0,
+        max_iter: 1_000,
+    };
+    let solve = |prior_rad: f64| {
+        let mut rotations = vec![Matrix3::identity(); 2];
+        let mut translations = vec![Vector3::zeros(), Vector3::new(100.0, 0.0, 0.0)];
+        joint_refine(
+            &graph,
+            &[omega],
+            &[1.0],
+            &mut rotations,
+            &mut translations,
+            6,
+            tight,
+            prior_rad,
+        );
+        rotations
+    };
+    let yaw_of = |r: &Matrix3<f64>| rotation_vector(r).z.to_degrees();
+    let free = solve(f64::INFINITY);
+    let relative = yaw_of(&free[0].tr_mul(&free[1]));
+    assert!((relative - 0.1).abs() < 1e-6, "{relative}");
+    let held = solve(0.05f64.to_radians());
+    let (a, b) = (yaw_of(&held[0]), yaw_of(&held[1]));
+    assert!((b - a - 2.0 * 0.1 / 6.0).abs() < 1e-5, "{a} {b}");
+    assert!(
+        (a + b).abs() < 1e-5,
+        "symmetric about the identity: {a} {b}"
+    );
+}
