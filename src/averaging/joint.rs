@@ -97,21 +97,31 @@ pub(crate) struct JointReport {
     pub converged: bool,
 }
 
-/// `steps` Gauss-Newton steps on all poses at once, edges weighted by
-/// `active` (0: left out), each solved to `tolerance`, each node's rotation
-/// held near the identity (its georeferencing) with one-sigma
-/// `rotation_prior_rad` per axis (infinite: free). Poses change in place.
-#[allow(clippy::too_many_arguments)]
+/// How [`joint_refine`] steps: `steps` Gauss-Newton steps, each solved to
+/// `tolerance`, each node's rotation held near the identity (its
+/// georeferencing) with one-sigma `rotation_prior_rad` per axis (infinite: free).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct JointSteps {
+    pub steps: usize,
+    pub tolerance: StepTolerance,
+    pub rotation_prior_rad: f64,
+}
+
+/// Gauss-Newton steps on all poses at once ([`JointSteps`]), edges weighted
+/// by `active` (0: left out). Poses change in place.
 pub(crate) fn joint_refine(
     graph: &PoseGraph,
     omegas: &[Matrix6<f64>],
     active: &[f64],
     rotations: &mut [Matrix3<f64>],
     translations: &mut [Vector3<f64>],
-    steps: usize,
-    tolerance: StepTolerance,
-    rotation_prior_rad: f64,
+    settings: JointSteps,
 ) -> JointReport {
+    let JointSteps {
+        steps,
+        tolerance,
+        rotation_prior_rad,
+    } = settings;
     let mut report = JointReport {
         cg_iterations: 0,
         converged: true,

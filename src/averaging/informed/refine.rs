@@ -7,7 +7,7 @@ use nalgebra::{Matrix3, Matrix6, Vector3};
 use super::InformedOptions;
 use crate::averaging::block::{BlockEdge, BlockReport, BlockSystem};
 use crate::averaging::cg::StepTolerance;
-use crate::averaging::joint::joint_refine;
+use crate::averaging::joint::{joint_refine, JointSteps};
 use crate::averaging::robust::rotation_vector;
 use crate::graph::PoseGraph;
 use crate::poses::rigid::rotation_from_axis_angle;
@@ -86,9 +86,11 @@ pub(super) fn refine(
             active,
             rotations,
             translations,
-            options.joint_steps,
-            tolerance,
-            options.rotation_prior_rad,
+            JointSteps {
+                steps: options.joint_steps,
+                tolerance,
+                rotation_prior_rad: options.rotation_prior_rad,
+            },
         );
         iterations += joint.cg_iterations;
     }

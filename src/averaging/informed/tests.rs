@@ -397,14 +397,16 @@ fn joint_steps_recover_exact_poses_from_a_perturbed_start() {
             &active,
             &mut rotations,
             &mut translations,
-            8,
-            // exact solves: the linearisation is what is tested
-            crate::averaging::cg::StepTolerance {
-                relative: 1e-10,
-                chi2_per_unknown: 0.0,
-                max_iter: 10_000,
+            super::super::joint::JointSteps {
+                steps: 8,
+                // exact solves: the linearisation is what is tested
+                tolerance: crate::averaging::cg::StepTolerance {
+                    relative: 1e-10,
+                    chi2_per_unknown: 0.0,
+                    max_iter: 10_000,
+                },
+                rotation_prior_rad: f64::INFINITY,
             },
-            f64::INFINITY,
         );
         let mut est: Vec<Matrix4<f64>> = rotations
             .iter()

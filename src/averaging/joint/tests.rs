@@ -164,9 +164,11 @@ fn the_rotation_prior_holds_each_node_about_the_identity() {
             &[1.0],
             &mut rotations,
             &mut translations,
-            6,
-            tight,
-            prior_rad,
+            JointSteps {
+                steps: 6,
+                tolerance: tight,
+                rotation_prior_rad: prior_rad,
+            },
         );
         rotations
     };
