@@ -17,6 +17,7 @@ pub mod information;
 
 pub use information::{
     fit_information, fit_information_with, Axis, DegeneracyRule, FitInformation, RotationPrior,
+    WallSnap,
 };
 
 use information::{constrained_directions, pseudo_inverse, NormalEquations};
@@ -110,7 +111,7 @@ pub fn point_to_plane_prior(
     rule: &DegeneracyRule,
     prior: Option<&RotationPrior>,
 ) -> Option<FitUpdate> {
-    let eq = NormalEquations::new(corrs, rule.cluster_cell_m)?.with_rotation_prior(prior);
+    let eq = NormalEquations::new(corrs, rule)?.with_rotation_prior(prior);
     let (h, g, radius) = (eq.h, eq.g, eq.radius_m);
     let (ratio, weakest) = match model {
         Model::Rigid => conditioning(&h)?,

@@ -97,7 +97,8 @@ pub struct IcpArgs {
     pub seed: u64,
     /// Point-to-surface: skip reference places whose 7 x 7 neighbourhood
     /// deviates from a plane by more than this RMS (metres) and 3x the median
-    /// (walls, tree crowns).
+    /// (walls, tree crowns); default `inf`: walls are kept, each wall segment
+    /// counted in the sigmas with one placement error of pixel / sqrt(6).
     #[arg(long, default_value_t = defaults().max_roughness_m)]
     pub max_roughness: f64,
     /// One-sigma prior on each pair's rotation about its start, degrees per

@@ -21,7 +21,7 @@
 //! initial value (solution remapping, Zhang & Singh 2016; X-ICP, Tuna et al. 2023).
 
 use super::{Correspondence, Model};
-use nalgebra::{DMatrix, Matrix6, SymmetricEigen, Vector3, Vector6};
+use nalgebra::{DMatrix, Matrix6, Matrix6x2, SymmetricEigen, Vector2, Vector3, Vector6};
 use std::collections::BTreeMap;
 
 /// One of the six pose parameters, in the order of [`FitInformation::info_6x6`].
@@ -66,7 +66,72 @@ pub struct DegeneracyRule {
     /// Distance over which residuals may be correlated (the kernel bandwidth),
     /// metres; None: half the RMS radius of the points.
     pub cluster_cell_m: Option<f64>,
+    /// Walls' shared placement error (see [`WallSnap`]); None: none.
+    pub walls: Option<WallSnap>,
 }
+
+/// A wall's position in a gridded DSM is snapped to its lattice: one error,
+/// uniform over a pixel in each of the two DSMs (variance pixel^2 / 6 for
+/// both), shared by every match along the wall. The sandwich of one fit's
+/// residuals sees few walls and does not measure it; each wall segment adds
+/// sigma_m^2 B B^T to the meat, B the sum over its matches of w a n_h^T
+/// (n_h the normal's horizontal part: how far the match's residual moves
+/// when the wall does).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct WallSnap {
+    /// One-sigma placement error of a wall in either horizontal direction, metres.
+    pub sigma_m: f64,
+    /// Side of the squares that cut walls into segments of one shared error, metres.
+    pub segment_m: f64,
+}
+
+impl WallSnap {
+    /// Snapping to pixels of `pixel_m` in two DSMs, segments of 16 pixels.
+    pub fn of_pixel(pixel_m: f64) -> Self {
+        WallSnap {
+            sigma_m: pixel_m / 6f64.sqrt(),
+            segment_m: 16.0 * pixel_m,
+        }
+    }
+
+    /// The meat of the walls among `corrs` (a match on a wall: a normal
+    /// at least [`WALL_MIN_HORIZONTAL_NORMAL`] horizontal), parameters scaled as [`NormalEquations`].
+    fn meat(
+        &self,
+        corrs: &[Correspondence],
+        centroid: &Vector3<f64>,
+        radius_m: f64,
+    ) -> Matrix6<f64> {
+        let mut walls: BTreeMap<(i64, i64, i64), Matrix6x2<f64>> = BTreeMap::new();
+        for c in corrs {
+            let n_h = Vector2::new(c.normal.x, c.normal.y);
+            if n_h.norm() < WALL_MIN_HORIZONTAL_NORMAL {
+                continue;
+            }
+            let q = c.moving - centroid;
+            let a_rot = q.cross(&c.normal) / radius_m;
+            let a = Vector6::new(
+                a_rot.x, a_rot.y, a_rot.z, c.normal.x, c.normal.y, c.normal.z,
+            );
+            // which of the four facing directions (a building's sides are apart)
+            let facing =
+                ((n_h.y.atan2(n_h.x) / std::f64::consts::FRAC_PI_2).round() as i64).rem_euclid(4);
+            let cell = |v: f64| (v / self.segment_m).floor() as i64;
+            *walls
+                .entry((cell(q.x), cell(q.y), facing))
+                .or_insert_with(Matrix6x2::zeros) += c.weight * a * n_h.transpose();
+        }
+        walls
+            .values()
+            .map(|b| b * b.transpose())
+            .sum::<Matrix6<f64>>()
+            * self.sigma_m.powi(2)
+    }
+}
+
+/// A match is on a wall when its normal's horizontal part reaches this (a
+/// slope of 44 degrees or more).
+const WALL_MIN_HORIZONTAL_NORMAL: f64 = 0.7;
 
 impl DegeneracyRule {
     /// Only numerically singular directions (the plain point-to-plane step).
@@ -74,6 +139,7 @@ impl DegeneracyRule {
         min_relative_eigenvalue: 1e-10,
         max_sigma_m: f64::INFINITY,
         cluster_cell_m: None,
+        walls: None,
     };
 }
 
@@ -84,6 +150,7 @@ impl Default for DegeneracyRule {
             min_relative_eigenvalue: 1e-6,
             max_sigma_m: 0.5,
             cluster_cell_m: None,
+            walls: None,
         }
     }
 }
@@ -166,7 +233,8 @@ pub(crate) struct NormalEquations {
 }
 
 impl NormalEquations {
-    pub fn new(corrs: &[Correspondence], cell_m: Option<f64>) -> Option<Self> {
+    pub fn new(corrs: &[Correspondence], rule: &DegeneracyRule) -> Option<Self> {
+        let cell_m = rule.cluster_cell_m;
         let total_w: f64 = corrs.iter().map(|c| c.weight).sum();
         if corrs.len() < 6 || total_w <= 0.0 {
             return None;
@@ -208,7 +276,10 @@ impl NormalEquations {
         // independent neighbourhoods, and from residuals, not errors.
         let groups = cells.len() as f64 / (CELLS_PER_BANDWIDTH * CELLS_PER_BANDWIDTH) as f64;
         let correction = groups / (groups - 6.0).max(1.0);
-        let clustered = bartlett_meat(&cells) * correction.max(1.0);
+        let mut clustered = bartlett_meat(&cells) * correction.max(1.0);
+        if let Some(walls) = &rule.walls {
+            clustered += walls.meat(corrs, &centroid, radius_m);
+        }
         Some(NormalEquations {
             h,
             g,
@@ -361,7 +432,7 @@ pub fn fit_information_with(
     rule: &DegeneracyRule,
     prior: Option<&RotationPrior>,
 ) -> Option<FitInformation> {
-    let eq = NormalEquations::new(corrs, rule.cluster_cell_m)?.with_rotation_prior(prior);
+    let eq = NormalEquations::new(corrs, rule)?.with_rotation_prior(prior);
     let (eig, keep) = constrained_directions(&eq, model, rule);
     // Covariance with the normals' noise taken out of H and the meat (eiv.rs).
     let (h_noise, meat_noise) = eiv::noise_terms(corrs, &eq.centroid, eq.radius_m);

@@ -40,7 +40,8 @@ pub struct IcpConfig {
     pub max_level: usize,
     /// Point-to-surface only: skip places whose neighbourhood deviates from a
     /// plane by more than this RMS and more than 3x the median roughness (walls,
-    /// tree crowns): their tangent plane is not the surface.
+    /// tree crowns); infinite (the default): keep them, walls counted in the
+    /// sigmas with their snapping to the pixels ([`crate::fit::WallSnap`]).
     pub max_roughness_m: f64,
     /// Converged when an update moves less than this (metres, at the overlap's edge).
     pub tolerance_m: f64,
@@ -66,7 +67,7 @@ impl Default for IcpConfig {
             seed: 1,
             max_level: 3,
             tolerance_m: 1e-4,
-            max_roughness_m: 1.0,
+            max_roughness_m: f64::INFINITY,
             rotation_prior_deg: DEFAULT_ROTATION_PRIOR_DEG,
             sigma_floor_px: super::floor::DEFAULT_SIGMA_FLOOR_PX,
         }

@@ -315,3 +315,45 @@ fn noisy_normals_are_not_information() {
         "corrected {corrected} vs exact normals {exact}"
     );
 }
+
+/// Wavy ground plus one short wall facing +x (one segment): the ground pins
+/// x to millimetres, but the wall's matches, which carry most of the x
+/// information when the ground is smooth, share one snapping error; with the
+/// wall model x is known no better than the wall's placement allows.
+#[test]
+fn a_wall_shares_one_placement_error() {
+    let mut rng = SplitMix64::new(11);
+    let mut pts: Vec<(Vector3<f64>, Vector3<f64>)> =
+        surface(30, |x, y| (0.01 * x + 0.02 * y, 0.01, 0.02))
+            .into_iter()
+            .chain(
+                surface(30, wavy)
+                    .into_iter()
+                    .map(|(p, n)| (p + Vector3::new(0.0, 40.0, 0.0), n)),
+            )
+            .collect();
+    for k in 0..60 {
+        let (y, z) = ((k % 12) as f64 * 0.5 - 3.0, (k / 12) as f64 + 1.0);
+        pts.push((Vector3::new(2.0, y, z), Vector3::new(1.0, 0.0, 0.0)));
+    }
+    let corrs = correspondences(&pts, |_, p| {
+        p + Vector3::new(0.0, 0.0, 0.01 * (rng.next_f64() - 0.5))
+    });
+    let plain = fit_information(&corrs, Model::Rigid, &DegeneracyRule::NUMERICAL).unwrap();
+    let rule = DegeneracyRule {
+        walls: Some(WallSnap::of_pixel(0.5)),
+        ..DegeneracyRule::NUMERICAL
+    };
+    let walled = fit_information(&corrs, Model::Rigid, &rule).unwrap();
+    let (sx0, sx1) = (plain.sigma[0].unwrap(), walled.sigma[0].unwrap());
+    assert!(sx0 < 0.01, "without the model {sx0}");
+    assert!(
+        sx1 > 5.0 * sx0 && sx1 < 0.5,
+        "with the model {sx1} (plain {sx0})"
+    );
+    // no wall (the plane; the wavy patch reaches 45 degrees): nothing changes
+    let ground: Vec<Correspondence> = corrs[..900].to_vec();
+    let a = fit_information(&ground, Model::Rigid, &DegeneracyRule::NUMERICAL).unwrap();
+    let b = fit_information(&ground, Model::Rigid, &rule).unwrap();
+    assert_eq!(a.covariance_6x6, b.covariance_6x6);
+}
