@@ -285,8 +285,7 @@ mod tests {
     /// A DSM of the surface as seen by a sensor whose data need `t_ref_moving`
     /// to be registered: pixel (x', y') holds h' with t_ref_moving (x', y', h') on the surface.
     fn dsm(
-        left: f64,
-        top: f64,
+        (left, top): (f64, f64),
         size: i64,
         gsd: f64,
         t_ref_moving: &Isometry3<f64>,
@@ -342,8 +341,7 @@ mod tests {
             * truth_local
             * nalgebra::convert::<_, Isometry3<f64>>(to.inverse());
         let reference = dsm(
-            500_000.0,
-            4_800_200.0,
+            (500_000.0, 4_800_200.0),
             400,
             0.5,
             &Isometry3::identity(),
@@ -352,8 +350,7 @@ mod tests {
             scatter,
         );
         let moving = dsm(
-            500_060.0,
-            4_800_200.0,
+            (500_060.0, 4_800_200.0),
             400,
             0.5,
             &truth,
@@ -448,11 +445,19 @@ mod tests {
     #[test]
     fn disjoint_dsms_are_refused() {
         let a = MemPyramid::build(
-            dsm(0.0, 100.0, 50, 1.0, &Isometry3::identity(), 0.0, 1, false),
+            dsm((0.0, 100.0), 50, 1.0, &Isometry3::identity(), 0.0, 1, false),
             64,
         );
         let b = MemPyramid::build(
-            dsm(500.0, 100.0, 50, 1.0, &Isometry3::identity(), 0.0, 1, false),
+            dsm(
+                (500.0, 100.0),
+                50,
+                1.0,
+                &Isometry3::identity(),
+                0.0,
+                1,
+                false,
+            ),
             64,
         );
         assert!(matches!(

@@ -9,7 +9,7 @@
 //! (not the ICP steps) takes that term out of H and, weighted by r^2, out of
 //! the meat.
 
-use nalgebra::{DMatrix, Matrix6, SymmetricEigen, Vector3, Vector6};
+use nalgebra::{DMatrix, Matrix6, SymmetricEigen, Vector3};
 
 use crate::fit::Correspondence;
 
@@ -30,8 +30,7 @@ pub(super) fn noise_terms(
         let q = c.moving - centroid;
         let mut cov_a = Matrix6::zeros();
         for e in [Vector3::x(), Vector3::y()] {
-            let rot = q.cross(&e) / radius_m;
-            let col = Vector6::new(rot.x, rot.y, rot.z, e.x, e.y, e.z);
+            let col = super::jacobian_row(&q, &e, radius_m);
             cov_a += col * col.transpose();
         }
         cov_a *= c.normal_var;
