@@ -135,11 +135,15 @@ fn component_motions<'a>(
         .iter()
         .map(|members| {
             let scale = 1.0 / (members.len() as f64).sqrt();
-            let basis = null
+            let basis: Vec<Vec<Vector3<f64>>> = null
                 .iter()
                 .map(|axis| members.iter().map(|&k| axis[k] * scale).collect())
                 .collect();
-            ComponentMotions { members, basis }
+            ComponentMotions {
+                members,
+                conditions: basis.clone(),
+                basis,
+            }
         })
         .collect()
 }
@@ -211,10 +215,15 @@ fn exact(n: usize, edges: &[BlockEdge], null: &[Vec<Vector3<f64>>]) -> Vec<Vecto
 /// The diagonal of P H^+ P, P projecting out the orthonormal free motions
 /// `null` (H is regularised along them at its mean diagonal, then the projection
 /// removes them again); None when the regularised H is not positive definite.
-pub(crate) fn gauge_free_diagonal(
+pub(crate) fn gauge_free_diagonal(h: DMatrix<f64>, null: &[DVector<f64>]) -> Option<DVector<f64>> {
+    gauge_free_inverse(h, null).map(|c| c.diagonal())
+}
+
+/// P H^+ P of [`gauge_free_diagonal`], whole.
+pub(crate) fn gauge_free_inverse(
     mut h: DMatrix<f64>,
     null: &[DVector<f64>],
-) -> Option<DVector<f64>> {
+) -> Option<DMatrix<f64>> {
     let size = h.nrows();
     let scale = (h.trace() / size.max(1) as f64).max(f64::MIN_POSITIVE);
     for v in null {
@@ -225,7 +234,7 @@ pub(crate) fn gauge_free_diagonal(
     for v in null {
         projector -= v * v.transpose();
     }
-    Some((&projector * inverse * &projector).diagonal())
+    Some(&projector * inverse * &projector)
 }
 
 fn sampled(

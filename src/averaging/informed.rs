@@ -30,117 +30,15 @@ use super::consistency::{
 use super::covariance::{node_sigmas, CovarianceMethod, NodeSigma};
 use super::joint::joint_node_sigmas;
 use super::{average, AveragingError, AveragingOptions, AveragingResult};
-use crate::fit::FitInformation;
 use crate::graph::{EdgeSigma, PoseGraph};
 use crate::poses::rigid::{from_parts, rotation, translation};
 use decide::decide;
-use nalgebra::allocator::Allocator;
-use nalgebra::{DefaultAllocator, DimName, DimSub, Matrix3, Matrix6, OMatrix, Vector3, U1};
+use nalgebra::{Matrix3, Matrix6, Vector3};
 use refine::refine;
 use reseed::reseed;
 
 /// Poses as rotations and translations, M = [R t].
 type Poses<'a> = (&'a mut [Matrix3<f64>], &'a mut [Vector3<f64>]);
-
-/// What one edge knows, about the axes of i's frame.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct EdgeInformation {
-    /// Information of the relative rotation, rad^-2 (zero along unconstrained axes).
-    pub rotation: Matrix3<f64>,
-    /// Information of the offset of the edge's centre, m^-2.
-    pub translation: Matrix3<f64>,
-    /// False for edges that did not converge or are ambiguous: they enter at
-    /// `unreliable_factor` of their information and never count as constraining.
-    pub reliable: bool,
-}
-
-impl EdgeInformation {
-    /// The marginal rotation and translation information of a fit: the inverses of
-    /// the covariance blocks on their constrained subspaces (zero along degenerate
-    /// axes).
-    pub fn from_fit(info: &FitInformation, reliable: bool) -> Self {
-        Self::from_covariance(&info.covariance_6x6, reliable)
-    }
-
-    /// The same from a 6x6 covariance of (x, y, z, roll, pitch, yaw), zero
-    /// along the directions the fit held: the marginal (Schur complement)
-    /// blocks of its pseudo-inverse. For a full-rank covariance they are the
-    /// inverses of its blocks; a held direction that mixes a shift and a
-    /// rotation (x with yaw along a narrow strip) leaves no information on
-    /// either, where the inverse of a block would read its zero variance as
-    /// certainty.
-    pub fn from_covariance(c: &Matrix6<f64>, reliable: bool) -> Self {
-        let info = pseudo_inverse6(c);
-        let block = |r: usize, k: usize| info.fixed_view::<3, 3>(r, k).into_owned();
-        let (tt, tr, rr) = (block(0, 0), block(0, 3), block(3, 3));
-        EdgeInformation {
-            translation: positive_part(&(tt - tr * block_inverse(&rr) * tr.transpose())),
-            rotation: positive_part(&(rr - tr.transpose() * block_inverse(&tt) * tr)),
-            reliable,
-        }
-    }
-
-    /// Diagonal information from per-axis standard errors (rad, m): for edges
-    /// whose fit reported no covariance.
-    pub fn from_sigma(sigma: &EdgeSigma, reliable: bool) -> Self {
-        let diag = |v: Vector3<f64>| Matrix3::from_diagonal(&v.map(|s| 1.0 / (s * s)));
-        EdgeInformation {
-            rotation: diag(sigma.rotation_rad()),
-            translation: diag(sigma.translation_m()),
-            reliable,
-        }
-    }
-
-    pub fn is_valid(&self) -> bool {
-        let symmetric =
-            |m: &Matrix3<f64>| (m - m.transpose()).amax() <= 1e-9 * m.amax().max(1e-300);
-        let ok = |m: &Matrix3<f64>| {
-            m.iter().all(|v| v.is_finite())
-                && symmetric(m)
-                && m.symmetric_eigen().eigenvalues.min() >= -1e-9 * m.amax()
-        };
-        ok(&self.rotation) && ok(&self.translation)
-    }
-}
-
-/// `f` applied to the eigenvalues of a symmetric D x D matrix:
-/// V diag(f(lambda, largest lambda)) V^T.
-fn spectral<D>(m: &OMatrix<f64, D, D>, f: impl Fn(f64, f64) -> f64) -> OMatrix<f64, D, D>
-where
-    D: DimName + DimSub<U1>,
-    DefaultAllocator: Allocator<D, D> + Allocator<D> + Allocator<<D as DimSub<U1>>::Output>,
-{
-    let eig = m.clone().symmetric_eigen();
-    let max = eig.eigenvalues.max();
-    let weights = OMatrix::<f64, D, D>::from_diagonal(&eig.eigenvalues.map(|l| f(l, max)));
-    &eig.eigenvectors * weights * eig.eigenvectors.transpose()
-}
-
-/// 1 / lambda above a relative cutoff of 1e-12, else 0: the pseudo-inverse.
-fn inverted(lambda: f64, max: f64) -> f64 {
-    if max > 0.0 && lambda > 1e-12 * max {
-        1.0 / lambda
-    } else {
-        0.0
-    }
-}
-
-/// The symmetric part of `m` with its negative eigenvalues set to zero (the
-/// Schur complements of an ill-conditioned information can come out a
-/// rounding error below zero, which [`EdgeInformation::is_valid`] refuses).
-fn positive_part(m: &Matrix3<f64>) -> Matrix3<f64> {
-    spectral(&(0.5 * (m + m.transpose())), |l, _| l.max(0.0))
-}
-
-/// Pseudo-inverse of a symmetric positive semi-definite 6x6 (relative cutoff 1e-12).
-fn pseudo_inverse6(c: &Matrix6<f64>) -> Matrix6<f64> {
-    spectral(c, inverted)
-}
-
-/// Pseudo-inverse of a symmetric positive semi-definite 3x3 (relative cutoff 1e-12).
-fn block_inverse(c: &Matrix3<f64>) -> Matrix3<f64> {
-    spectral(c, inverted)
-}
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct InformedOptions {
@@ -524,6 +422,10 @@ fn node_status(
 }
 
 mod decide;
+mod edge;
+#[cfg(test)]
+use edge::block_inverse;
+pub use edge::EdgeInformation;
 mod refine;
 mod reseed;
 #[cfg(test)]

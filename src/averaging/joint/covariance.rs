@@ -14,9 +14,11 @@ use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Vector3, Vector6};
 
 use super::{linearise, pivots, JointSystem};
 use crate::averaging::cg::StepTolerance;
-use crate::averaging::covariance::{gauge_free_diagonal, CovarianceMethod, NodeSigma};
+use crate::averaging::covariance::{gauge_free_inverse, CovarianceMethod, NodeSigma};
 use crate::averaging::direct::Budget;
-use crate::averaging::marginals::{dense, gauge_free_marginals, project_out, ComponentMotions};
+use crate::averaging::marginals::{
+    dense, gauge_free_marginals, project_out, to_mean_gauge, ComponentMotions,
+};
 use crate::graph::PoseGraph;
 use crate::rng::SplitMix64;
 
@@ -35,7 +37,7 @@ pub(crate) fn joint_node_sigmas(
     let system = linearise(graph, omegas, &active, rotations, translations, &pivots);
     let null = null_space(&pivots, components);
     let variances = if graph.n <= method.exact_max_nodes / 2 {
-        exact(&system, &dense(graph.n, &null))
+        exact(&system, &null)
     } else if let Some(variances) = selected(&system, &null) {
         variances
     } else {
@@ -102,7 +104,15 @@ pub(super) fn null_space<'a>(
                     basis.push(v);
                 }
             }
-            ComponentMotions { members, basis }
+            // the mean gauge: mean rotation and mean shift zero
+            let conditions = (0..6)
+                .map(|a| vec![Vector6::ith(a, 1.0); members.len()])
+                .collect();
+            ComponentMotions {
+                members,
+                basis,
+                conditions,
+            }
         })
         .collect()
 }
@@ -136,8 +146,9 @@ pub(super) fn selected(
     gauge_free_marginals(diagonal, links, motions, budget)
 }
 
-pub(super) fn exact(system: &JointSystem, null: &[Vec<Vector6<f64>>]) -> Vec<Vector6<f64>> {
+pub(super) fn exact(system: &JointSystem, motions: &[ComponentMotions<6>]) -> Vec<Vector6<f64>> {
     let n = system.n;
+    let null = dense(n, motions);
     let mut h = DMatrix::<f64>::zeros(6 * n, 6 * n);
     let mut add = |r: usize, c: usize, m: &Matrix6<f64>| {
         let mut view = h.view_mut((6 * r, 6 * c), (6, 6));
@@ -154,11 +165,24 @@ pub(super) fn exact(system: &JointSystem, null: &[Vec<Vector6<f64>>]) -> Vec<Vec
         .iter()
         .map(|v| DVector::from_iterator(6 * n, v.iter().flat_map(|b| b.iter().copied())))
         .collect();
-    let Some(diagonal) = gauge_free_diagonal(h, &flat) else {
+    let Some(mut c) = gauge_free_inverse(h, &flat) else {
         return vec![Vector6::repeat(f64::INFINITY); n];
     };
+    // to the mean gauge (marginals' module doc): P C P^T, columns then rows
+    for _ in 0..2 {
+        for j in 0..6 * n {
+            let mut x: Vec<Vector6<f64>> = (0..n)
+                .map(|k| c.fixed_view::<6, 1>(6 * k, j).into_owned())
+                .collect();
+            to_mean_gauge(&mut x, motions);
+            for (k, v) in x.iter().enumerate() {
+                c.fixed_view_mut::<6, 1>(6 * k, j).copy_from(v);
+            }
+        }
+        c.transpose_mut();
+    }
     (0..n)
-        .map(|k| Vector6::from_fn(|a, _| diagonal[6 * k + a]))
+        .map(|k| Vector6::from_fn(|a, _| c[(6 * k + a, 6 * k + a)]))
         .collect()
 }
 
@@ -190,6 +214,7 @@ fn sampled(
         project_out(&mut rhs, null);
         let (mut x, _, _) = system.solve(&rhs, StepTolerance::sample(20_000));
         project_out(&mut x, null);
+        to_mean_gauge(&mut x, null);
         sum.iter_mut()
             .zip(&x)
             .for_each(|(s, v)| *s += v.component_mul(v));
