@@ -109,7 +109,7 @@ impl<const D: usize> ComponentMotions<'_, D> {
     }
 }
 
-/// The diagonal of each node's block of P H^+ P (module doc), from H's diagonal
+/// The diagonal of each node's block of P C P^T (module doc), from H's diagonal
 /// blocks and its blocks H_ij of linked nodes; zero for nodes in no component
 /// of two or more. None when the factor exceeds `budget` or the anchored
 /// matrix is not positive definite (a component with more free directions than
