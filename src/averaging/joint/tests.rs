@@ -140,13 +140,7 @@ fn the_rotation_prior_holds_each_node_about_the_identity() {
     let mut edge = crate::graph::Edge::new(0, 1, m, 0.3, 0.1);
     edge.centre_j = Vector3::new(-50.0, 0.0, 0.0);
     graph.edges.push(edge);
-    let mut omega = Matrix6::zeros();
-    omega
-        .fixed_view_mut::<3, 3>(0, 0)
-        .copy_from(&(Matrix3::identity() / yaw.powi(2)));
-    omega
-        .fixed_view_mut::<3, 3>(3, 3)
-        .copy_from(&(Matrix3::identity() / 0.01f64.powi(2)));
+    let omega = isotropic_omega(yaw, 0.01);
     let tight = StepTolerance {
         relative: 1e-12,
         chi2_per_unknown: 0.0,
@@ -194,13 +188,7 @@ fn a_loose_shift_does_not_loosen_the_rotations() {
     edge.centre_j = Vector3::new(-500.0, 0.0, 0.0);
     graph.edges.push(edge);
     let (sr, st) = (1e-5f64, 4.5f64);
-    let mut omega = Matrix6::zeros();
-    omega
-        .fixed_view_mut::<3, 3>(0, 0)
-        .copy_from(&(Matrix3::identity() / sr.powi(2)));
-    omega
-        .fixed_view_mut::<3, 3>(3, 3)
-        .copy_from(&(Matrix3::identity() / st.powi(2)));
+    let omega = isotropic_omega(sr, st);
     let rotations = vec![Matrix3::identity(); 2];
     let translations = vec![Vector3::zeros(), Vector3::new(1000.0, 0.0, 0.0)];
     let components = vec![vec![0, 1]];
@@ -238,4 +226,17 @@ fn a_loose_shift_does_not_loosen_the_rotations() {
             assert!((r / sr - 1.0).abs() < 1e-3, "{r} {s:?}");
         }
     }
+}
+
+/// A block-diagonal edge information: rotations known to `rotation_rad`,
+/// shifts to `shift_m`, on every axis.
+fn isotropic_omega(rotation_rad: f64, shift_m: f64) -> Matrix6<f64> {
+    let mut omega = Matrix6::zeros();
+    omega
+        .fixed_view_mut::<3, 3>(0, 0)
+        .copy_from(&(Matrix3::identity() / rotation_rad.powi(2)));
+    omega
+        .fixed_view_mut::<3, 3>(3, 3)
+        .copy_from(&(Matrix3::identity() / shift_m.powi(2)));
+    omega
 }
