@@ -239,10 +239,16 @@ pub struct RotationPrior {
 
 impl NormalEquations {
     /// The equations with `prior` added as three pseudo-observations of the
-    /// rotation, weighted like the data (per unit weight, the residual variance
-    /// trace(meat) / trace(H)); their meat is their information times that
-    /// variance, so the sandwich of a direction the data do not see is the
-    /// prior's variance, and of one they see well, the data's.
+    /// rotation. Per unit weight the data's residual variance is v =
+    /// trace(meat) / trace(H); a pseudo-observation of weight v / sigma^2 would
+    /// weigh the prior against the data as if their residuals were independent.
+    /// Correlated residuals and walls' shared errors (the clustered meat) make
+    /// a direction's data worth less than H says, by a factor kappa (its
+    /// sandwich over its naive variance), so each rotation axis's prior weight
+    /// is kappa v / sigma^2 and its clustered meat that weight times kappa v: the step and
+    /// the sandwich are then the generalised-least-squares combination of the
+    /// data with the prior (exact along each axis), and no rotation's standard
+    /// error exceeds the prior's. A direction the data do not see has kappa 1.
     pub fn with_rotation_prior(mut self, prior: Option<&RotationPrior>) -> Self {
         let Some(p) = prior.filter(|p| p.sigma_rad > 0.0 && p.sigma_rad.is_finite()) else {
             return self;
@@ -252,15 +258,50 @@ impl NormalEquations {
             return self;
         }
         let lambda = variance / (p.sigma_rad * self.radius_m).powi(2);
-        for k in 0..3 {
-            self.h[(k, k)] += lambda;
-            self.g[k] += lambda * p.current[k] * self.radius_m;
-            self.meat[(k, k)] += variance * lambda;
-            self.clustered[(k, k)] += variance * lambda;
+        let kappa = self.inflation(lambda, variance);
+        for (k, factor) in kappa.into_iter().enumerate() {
+            let weight = lambda * factor;
+            self.h[(k, k)] += weight;
+            self.g[k] += weight * p.current[k] * self.radius_m;
+            // the independent meat, as its H, takes the prior as independent data
+            self.meat[(k, k)] += variance * weight;
+            self.clustered[(k, k)] += variance * weight * factor;
         }
         self
     }
+
+    /// Per rotation axis, the factor by which the clustered sandwich exceeds
+    /// the naive variance v H^-1 with the prior in: a fixed point (it converges
+    /// to the data's own factor, geometrically by lambda kappa / (h + lambda
+    /// kappa)), clamped to [1, 10^6].
+    fn inflation(&self, lambda: f64, variance: f64) -> [f64; 3] {
+        let mut kappa = [1.0; 3];
+        for _ in 0..INFLATION_ITERATIONS {
+            let (mut h, mut meat) = (self.h, self.clustered);
+            for (k, factor) in kappa.iter().enumerate() {
+                h[(k, k)] += lambda * factor;
+                meat[(k, k)] += variance * lambda * factor * factor;
+            }
+            let eig = h.symmetric_eigen();
+            let max = eig.eigenvalues.max();
+            let keep = std::array::from_fn(|k| eig.eigenvalues[k] > 1e-12 * max);
+            let inverse = pseudo_inverse(&eig, &keep);
+            let sandwich = inverse * meat * inverse;
+            for (k, factor) in kappa.iter_mut().enumerate() {
+                let naive = variance * inverse[(k, k)];
+                if naive > 0.0 && sandwich[(k, k)].is_finite() {
+                    *factor = (sandwich[(k, k)] / naive).clamp(1.0, 1e6);
+                }
+            }
+        }
+        kappa
+    }
 }
+
+/// Fixed-point iterations of [`NormalEquations::inflation`]: the error shrinks
+/// by lambda kappa / (h + lambda kappa) each, so where the prior matters
+/// (h ~ lambda kappa) five leave about 3 %.
+const INFLATION_ITERATIONS: usize = 5;
 
 /// The point-to-plane row of a match at `q` (from the centroid) with normal
 /// `n`: rotations (scaled by the radius, so all six share metres) then shifts.
