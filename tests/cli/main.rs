@@ -14,6 +14,7 @@ mod eco2;
 mod faults;
 mod fuse_eval;
 mod fuzz;
+mod grids;
 mod icpwire;
 mod ingest;
 mod ingest4;
