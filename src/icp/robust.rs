@@ -63,6 +63,10 @@ pub(super) fn weighted(
         Metric::PointToPlane | Metric::PointToSurface => c.plane_residual_m().abs(),
         Metric::PointToPoint => (c.moving - c.reference).norm(),
     };
+    if corrs.is_empty() {
+        // a restart whose final association found nothing (64 m tiles)
+        return corrs;
+    }
     let mut abs: Vec<f64> = corrs.iter().map(residual).collect();
     let mid = abs.len() / 2;
     let median = *abs.select_nth_unstable_by(mid, f64::total_cmp).1;
@@ -134,6 +138,19 @@ mod tests {
             weight: 1.0,
             normal_var: 0.0,
         }
+    }
+
+    /// A fit whose final association found no match (a restart on a 64 m
+    /// tile's sliver of overlap) has nothing to weigh, and no median to take.
+    #[test]
+    fn no_matches_weigh_to_none() {
+        for metric in [Metric::PointToSurface, Metric::PointToPoint] {
+            assert!(weighted(Vec::new(), &[], metric).is_empty());
+        }
+        assert_eq!(
+            weighted(vec![corr(0.5)], &[], Metric::PointToSurface).len(),
+            1
+        );
     }
 
     #[test]
