@@ -5,12 +5,12 @@
 //! test's comment are docs/measurements.md's ("The rotation prior weighed by
 //! what the data are worth").
 
-use std::path::Path;
-
 use crate::util::{assert_ok, bin, dsmgen, dsmgen_tiles, ingest};
 
 /// What `dsmgen score --json` says of one default `align` of a generated grid.
 struct Scored {
+    /// The figures below in one line, for messages.
+    what: String,
     median_m: f64,
     worst_m: f64,
     worst_deg: f64,
@@ -18,12 +18,28 @@ struct Scored {
     within_3_sigma: [f64; 2],
 }
 
-/// `dsmgen tiles --layout grid` with `args`, ingest, `align` at the defaults,
-/// `dsmgen score`.
-fn align_grid(dir: &Path, args: &[&str]) -> Scored {
+/// A `rows` x `rows` grid of `size` px tiles (`dsmgen tiles --layout grid`,
+/// 30 % overlaps), ingested, aligned at the defaults, scored by `dsmgen score`.
+fn align_grid(rows: &str, size: &str, seed: &str, render: &str) -> Scored {
+    let temp = tempfile::tempdir().unwrap();
+    let dir = temp.path();
     let tiles = dir.join("tiles");
-    let mut layout = vec!["--layout", "grid", "--overlap", "0.3"];
-    layout.extend_from_slice(args);
+    let layout = [
+        "--layout",
+        "grid",
+        "--overlap",
+        "0.3",
+        "--rows",
+        rows,
+        "--cols",
+        rows,
+        "--size",
+        size,
+        "--seed",
+        seed,
+        "--render",
+        render,
+    ];
     dsmgen_tiles(&layout, &tiles);
     let store = dir.join("c.zarr");
     ingest(std::slice::from_ref(&tiles), &store);
@@ -49,7 +65,8 @@ fn align_grid(dir: &Path, args: &[&str]) -> Scored {
     assert_ok(&score);
     let v: serde_json::Value = serde_json::from_slice(&score.stdout).unwrap();
     let f = |x: &serde_json::Value| x.as_f64().unwrap();
-    Scored {
+    let scored = Scored {
+        what: String::new(),
         median_m: f(&v["per_dsm"]["median_m"]),
         worst_m: f(&v["per_dsm"]["worst_m"]),
         worst_deg: f(&v["per_dsm"]["worst_deg"]),
@@ -57,7 +74,13 @@ fn align_grid(dir: &Path, args: &[&str]) -> Scored {
             f(&v["per_dsm_sigma"]["shift"][2]),
             f(&v["per_dsm_sigma"]["rotation"][2]),
         ],
-    }
+    };
+    let what = format!(
+        "{rows} x {rows} seed {seed} {render}: median {} m, worst {} m / {} deg, within 3 sigma {:?}",
+        scored.median_m, scored.worst_m, scored.worst_deg, scored.within_3_sigma
+    );
+    eprintln!("{what}");
+    Scored { what, ..scored }
 }
 
 /// 20 x 20 DSMs of 128 m (256 px) with 38 m overlaps: per DSM median
@@ -72,21 +95,10 @@ fn align_grid(dir: &Path, args: &[&str]) -> Scored {
 #[ignore]
 fn grids_of_400_dsms_of_128_m_meet_the_targets() {
     for (seed, render) in [("3", "centre"), ("5", "lidar-max")] {
-        let dir = tempfile::tempdir().unwrap();
-        let s = align_grid(
-            dir.path(),
-            &[
-                "--rows", "20", "--cols", "20", "--size", "256", "--seed", seed, "--render", render,
-            ],
-        );
-        let what = format!(
-            "seed {seed} {render}: median {} m, worst {} m / {} deg, within 3 sigma {:?}",
-            s.median_m, s.worst_m, s.worst_deg, s.within_3_sigma
-        );
-        eprintln!("{what}");
-        assert!(s.median_m <= 0.08, "{what}");
-        assert!(s.worst_m <= 0.25 && s.worst_deg <= 0.05, "{what}");
-        assert!(s.within_3_sigma == [1.0, 1.0], "{what}");
+        let s = align_grid("20", "256", seed, render);
+        assert!(s.median_m <= 0.08, "{}", s.what);
+        assert!(s.worst_m <= 0.25 && s.worst_deg <= 0.05, "{}", s.what);
+        assert!(s.within_3_sigma == [1.0, 1.0], "{}", s.what);
     }
 }
 
@@ -95,19 +107,8 @@ fn grids_of_400_dsms_of_128_m_meet_the_targets() {
 #[test]
 #[ignore]
 fn grids_of_400_sparse_tin_dsms_meet_the_median() {
-    let dir = tempfile::tempdir().unwrap();
-    let s = align_grid(
-        dir.path(),
-        &[
-            "--rows", "20", "--cols", "20", "--size", "256", "--seed", "7", "--render", "tin",
-        ],
-    );
-    assert!(
-        s.median_m <= 0.08 && s.worst_m < 1.0,
-        "{} {}",
-        s.median_m,
-        s.worst_m
-    );
+    let s = align_grid("20", "256", "7", "tin");
+    assert!(s.median_m <= 0.08 && s.worst_m < 1.0, "{}", s.what);
 }
 
 /// 10 x 10 DSMs of 256 m (512 px) with 77 m overlaps: per DSM worst
@@ -116,19 +117,8 @@ fn grids_of_400_sparse_tin_dsms_meet_the_median() {
 #[ignore]
 fn grids_of_100_dsms_of_256_m_meet_the_targets() {
     for (seed, render) in [("4", "centre"), ("6", "lidar-mean"), ("8", "smooth")] {
-        let dir = tempfile::tempdir().unwrap();
-        let s = align_grid(
-            dir.path(),
-            &[
-                "--rows", "10", "--cols", "10", "--size", "512", "--seed", seed, "--render", render,
-            ],
-        );
-        let what = format!(
-            "seed {seed} {render}: median {} m, worst {} m / {} deg, within 3 sigma {:?}",
-            s.median_m, s.worst_m, s.worst_deg, s.within_3_sigma
-        );
-        eprintln!("{what}");
-        assert!(s.worst_m <= 0.10, "{what}");
-        assert!(s.within_3_sigma == [1.0, 1.0], "{what}");
+        let s = align_grid("10", "512", seed, render);
+        assert!(s.worst_m <= 0.10, "{}", s.what);
+        assert!(s.within_3_sigma == [1.0, 1.0], "{}", s.what);
     }
 }
