@@ -51,6 +51,18 @@ pub trait Grid {
     fn take_error(&mut self) -> Option<GridError> {
         None
     }
+    /// The `w x h` window with top-left pixel (col0, row0), row-major; NaN
+    /// outside the raster (as `get` reads it, pixel by pixel unless an
+    /// implementation copies whole rows).
+    fn read_window(&mut self, col0: i64, row0: i64, w: usize, h: usize) -> Vec<f32> {
+        let mut out = Vec::with_capacity(w * h);
+        for row in row0..row0 + h as i64 {
+            for col in col0..col0 + w as i64 {
+                out.push(self.get(col, row));
+            }
+        }
+        out
+    }
 }
 
 /// A raster held in memory, row-major, NaN for no-data.
@@ -125,6 +137,9 @@ impl<G: Grid + ?Sized> Grid for &mut G {
     }
     fn take_error(&mut self) -> Option<GridError> {
         (**self).take_error()
+    }
+    fn read_window(&mut self, col0: i64, row0: i64, w: usize, h: usize) -> Vec<f32> {
+        (**self).read_window(col0, row0, w, h)
     }
 }
 

@@ -44,8 +44,9 @@
 //! - [`synth`]: DSM collections with a known answer (generated city tiles or
 //!   cuts of a real DSM), used by the tests, the demo and `dsmgen`.
 //! - [`atomic`]: files written under a temporary name and renamed when
-//!   complete; [`rng`]: seeded pseudo-random numbers; [`error`]: the
-//!   [`InputError`] the binary maps to exit code 2.
+//!   complete; [`rng`]: seeded pseudo-random numbers; [`select`]: the k-th
+//!   smallest of many values; [`error`]: the [`InputError`] the binary maps
+//!   to exit code 2.
 
 pub mod align;
 pub mod atomic;
@@ -70,6 +71,7 @@ pub mod plan;
 pub mod plots;
 pub mod poses;
 pub mod rng;
+pub mod select;
 pub mod store;
 pub mod synth;
 pub mod view;

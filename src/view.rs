@@ -133,6 +133,23 @@ impl<G: Grid> Grid for ViewedGrid<'_, G> {
     fn take_error(&mut self) -> Option<GridError> {
         self.inner.take_error()
     }
+    fn read_window(&mut self, col0: i64, row0: i64, w: usize, h: usize) -> Vec<f32> {
+        let mut out = self.inner.read_window(col0, row0, w, h);
+        let Some(l) = &self.lookup else {
+            out.iter_mut().for_each(|v| *v += self.dz_m);
+            return out;
+        };
+        for (row, line) in (row0..).zip(out.chunks_exact_mut(w.max(1))) {
+            for (col, v) in (col0..).zip(line) {
+                if !v.is_nan() && !l.is_stable(col, row) {
+                    *v = f32::NAN;
+                } else {
+                    *v += self.dz_m;
+                }
+            }
+        }
+        out
+    }
 }
 
 /// A result between two views in the DSMs' own coordinates (module doc).

@@ -22,7 +22,7 @@
 
 use super::{Correspondence, Model};
 use nalgebra::{DMatrix, Matrix6, SymmetricEigen, Vector3, Vector6};
-use std::collections::BTreeMap;
+use rayon::prelude::*;
 
 /// One of the six pose parameters, in the order of [`FitInformation::info_6x6`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
@@ -190,20 +190,26 @@ impl NormalEquations {
             .max(1e-6);
         let bandwidth = cell_m.unwrap_or(radius_m / 2.0).max(1e-9);
         let cell = bandwidth / CELLS_PER_BANDWIDTH as f64;
-        let mut h = Matrix6::zeros();
-        let mut g = Vector6::zeros();
-        let mut meat = Matrix6::zeros();
-        let mut cells: BTreeMap<(i64, i64), Vector6<f64>> = BTreeMap::new();
-        for c in corrs {
-            let q = c.moving - centroid;
-            let a = jacobian_row(&q, &c.normal, radius_m);
-            let r = c.plane_residual_m();
-            let aat = a * a.transpose();
-            h += c.weight * aat;
-            g += c.weight * r * a;
-            meat += (c.weight * r).powi(2) * aat;
-            let key = ((q.x / cell).floor() as i64, (q.y / cell).floor() as i64);
-            *cells.entry(key).or_insert_with(Vector6::zeros) += c.weight * r * a;
+        // fixed chunks summed in parallel, their sums added in order: the
+        // same result whatever the thread count
+        let parts: Vec<Sums> = corrs
+            .par_chunks(SUM_CHUNK)
+            .map(|chunk| Sums::of(chunk, &centroid, radius_m, cell))
+            .collect();
+        let mut parts = parts.into_iter();
+        let Sums {
+            mut h,
+            mut g,
+            mut meat,
+            mut cells,
+        } = parts.next().expect("at least six matches");
+        for p in parts {
+            h += p.h;
+            g += p.g;
+            meat += p.meat;
+            for (key, s) in p.cells {
+                *cells.entry(key).or_insert_with(Vector6::zeros) += s;
+            }
         }
         // Small-sample correction as CR1 of cluster-robust estimators, with one
         // "cluster" per kernel footprint: the meat is estimated from few
@@ -312,27 +318,6 @@ pub(crate) fn jacobian_row(q: &Vector3<f64>, n: &Vector3<f64>, radius_m: f64) ->
 
 /// Cells per kernel bandwidth: the kernel is evaluated between cell sums.
 const CELLS_PER_BANDWIDTH: i64 = 4;
-
-/// Spatial (Conley) sandwich meat: sum over cell pairs of K(c, d) S_c S_d^T with
-/// the product Bartlett kernel (1 - |dx| / L)(1 - |dy| / L), positive
-/// semi-definite, which reaches to the bandwidth L.
-fn bartlett_meat(cells: &BTreeMap<(i64, i64), Vector6<f64>>) -> Matrix6<f64> {
-    let reach = CELLS_PER_BANDWIDTH;
-    let kernel = |d: i64| 1.0 - d.abs() as f64 / reach as f64;
-    let mut meat = Matrix6::zeros();
-    for (&(cx, cy), s) in cells {
-        let mut near = Vector6::zeros();
-        for dx in -reach + 1..reach {
-            for dy in -reach + 1..reach {
-                if let Some(t) = cells.get(&(cx + dx, cy + dy)) {
-                    near += t * (kernel(dx) * kernel(dy));
-                }
-            }
-        }
-        meat += s * near.transpose();
-    }
-    (meat + meat.transpose()) * 0.5
-}
 
 /// The eigen-directions of H the fit keeps (true) and holds (false).
 pub(crate) fn constrained_directions(
@@ -504,7 +489,9 @@ fn on_kept(
 }
 
 mod eiv;
+mod sums;
 mod walls;
+use sums::{bartlett_meat, Sums, SUM_CHUNK};
 pub use walls::WallSnap;
 
 #[cfg(test)]

@@ -12,16 +12,26 @@ use super::robust::Cell;
 use super::Metric;
 use crate::fit::Correspondence;
 use crate::grid::{Grid, GridError, Pyramid};
-use crate::nn::{nearest, normal_at, surface_below_memo, NnStats, PixelFrame, PlaneMemo};
+use crate::nn::{
+    nearest, normal_at, surface_below_memo, NnStats, PixelFrame, PlaneMemo, Window,
+    NORMAL_RADIUS_PX,
+};
 
 const BLOCK: usize = 4096;
+/// The side of the reference tiles a block's queries are grouped by, pixels
+/// (as [`block_order`] sorts them), each read through one [`Window`].
+const WINDOW_TILE_PX: i64 = 256;
+/// Fewer queries on a tile than this read the grid directly (a window of the
+/// search margin around one query costs more than it saves).
+const MIN_WINDOW_RUN: usize = 16;
 
 /// Matches of one iteration.
 #[derive(Clone, Debug, Default)]
 pub struct Association {
     /// Inlier correspondences (NN distance below tau), weight 1.
     pub corrs: Vec<Correspondence>,
-    /// NN distance of each inlier, same order as `corrs`.
+    /// NN distance of each inlier, same order as `corrs` (with
+    /// [`Distances::Bound`], point-to-surface: at most that, see there).
     pub distances_m: Vec<f64>,
     /// The reference surface at each inlier (zero unless point-to-surface).
     pub cells: Vec<Cell>,
@@ -42,13 +52,35 @@ pub fn block_order(points: &mut [Vector3<f64>], frame: &PixelFrame, block_px: i6
 }
 
 /// What the correspondence step needs of one level: the reference pyramid and
-/// level, that level's lattice in the local frame, the outlier distance and the metric.
+/// level, that level's lattice in the local frame, the outlier distance, the
+/// metric and whether the NN distances are wanted.
 pub struct Matcher<'a, P> {
     pub reference: &'a P,
     pub level: usize,
     pub frame: PixelFrame,
     pub tau_m: f64,
     pub metric: Metric,
+    pub distances: Distances,
+}
+
+/// What point-to-surface matching needs of the nearest neighbour.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Distances {
+    /// Its exact distance (the residuals a result reports).
+    Exact,
+    /// Only whether it lies within tau, the outlier rule (the loop's
+    /// iterations): the pixel right below within tau settles that without a
+    /// search, its distance kept as the bound. The same matches as `Exact`.
+    Bound,
+}
+
+impl<P> Matcher<'_, P> {
+    /// Pixels around a query its matching reads in the common case: the
+    /// plane window of the surface below and the first rings of a search,
+    /// plus one (farther reads, rare, go to the grid).
+    fn margin_px(&self) -> i64 {
+        NORMAL_RADIUS_PX + 3
+    }
 }
 
 impl<P: Pyramid> Matcher<'_, P> {
@@ -131,26 +163,68 @@ fn match_block<P: Pyramid>(
     t_ref_moving: &Isometry3<f64>,
     slots: Slots<'_>,
 ) -> Result<(usize, NnStats), GridError> {
-    let mut grid = matcher.reference.open_level(matcher.level)?;
+    let mut level = matcher.reference.open_level(matcher.level)?;
+    let queries: Vec<Vector3<f64>> = block
+        .iter()
+        .map(|p| t_ref_moving.transform_point(&Point3::from(*p)).coords)
+        .collect();
+    let tiles: Vec<(i64, i64)> = queries
+        .iter()
+        .map(|q| {
+            let (c, r) = matcher.frame.to_pixel(q);
+            let (c, r) = (c.floor() as i64, r.floor() as i64);
+            (r.div_euclid(WINDOW_TILE_PX), c.div_euclid(WINDOW_TILE_PX))
+        })
+        .collect();
     let (mut below, mut nn) = (0usize, NnStats::default());
-    for (i, (p, memo)) in block.iter().zip(memo).enumerate() {
-        let q = t_ref_moving.transform_point(&Point3::from(*p)).coords;
-        let (c, r) = matcher.frame.to_pixel(&q);
-        if !grid.get(c.floor() as i64, r.floor() as i64).is_nan() {
-            below += 1;
-        }
-        let Some((corr, distance_m, cell)) = match_query(&mut grid, matcher, &q, memo, &mut nn)
-        else {
-            continue;
+    // runs of queries on one tile of the reference (the block order keeps
+    // them together) read it through one window
+    let mut start = 0;
+    while start < queries.len() {
+        let run = tiles[start..].partition_point(|t| *t == tiles[start]);
+        let run = start..start + run;
+        let mut grid = if run.len() >= MIN_WINDOW_RUN {
+            let bounds = pixel_box(&matcher.frame, &queries[run.clone()]);
+            Window::around(&mut level, bounds, matcher.margin_px())
+        } else {
+            Window::none(&mut level)
         };
-        slots.corrs[i] = corr;
-        slots.distances_m[i] = distance_m;
-        slots.cells[i] = cell;
+        for i in run.clone() {
+            let q = &queries[i];
+            let (c, r) = matcher.frame.to_pixel(q);
+            if !grid.get(c.floor() as i64, r.floor() as i64).is_nan() {
+                below += 1;
+            }
+            let Some((corr, distance_m, cell)) =
+                match_query(&mut grid, matcher, q, &mut memo[i], &mut nn)
+            else {
+                continue;
+            };
+            slots.corrs[i] = corr;
+            slots.distances_m[i] = distance_m;
+            slots.cells[i] = cell;
+        }
+        start = run.end;
     }
-    if let Some(e) = grid.take_error() {
+    if let Some(e) = level.take_error() {
         return Err(e);
     }
     Ok((below, nn))
+}
+
+/// The pixels of the lattice the queries fall in, (col0, row0, col1, row1)
+/// inclusive; an empty box (col0 > col1) without a finite query.
+fn pixel_box(frame: &PixelFrame, queries: &[Vector3<f64>]) -> (i64, i64, i64, i64) {
+    let mut b = (i64::MAX, i64::MAX, i64::MIN, i64::MIN);
+    for q in queries {
+        let (c, r) = frame.to_pixel(q);
+        if !(c.is_finite() && r.is_finite()) {
+            continue;
+        }
+        let (c, r) = (c.floor() as i64, r.floor() as i64);
+        b = (b.0.min(c), b.1.min(r), b.2.max(c), b.3.max(r));
+    }
+    b
 }
 
 /// The correspondence of one query `q` (reference frame, local): its exact
@@ -164,12 +238,24 @@ fn match_query<P, G: Grid>(
     nn: &mut NnStats,
 ) -> Option<(Correspondence, f64, Cell)> {
     let frame = &matcher.frame;
-    let n = nearest(grid, frame, q, matcher.tau_m, nn)?;
-    if n.distance_m > matcher.tau_m {
-        return None;
-    }
-    let (reference, normal, cell, normal_var) = match matcher.metric {
-        Metric::PointToSurface => {
+    let bound = match (matcher.metric, matcher.distances) {
+        (Metric::PointToSurface, Distances::Bound) => {
+            below_within(grid, frame, q, matcher.tau_m, nn)
+        }
+        _ => None,
+    };
+    let (n, distance_m) = match bound {
+        Some(d) => (None, d),
+        None => {
+            let n = nearest(grid, frame, q, matcher.tau_m, nn)?;
+            if n.distance_m > matcher.tau_m {
+                return None;
+            }
+            (Some(n), n.distance_m)
+        }
+    };
+    let (reference, normal, cell, normal_var) = match (matcher.metric, n) {
+        (Metric::PointToSurface, _) => {
             let s = surface_below_memo(grid, frame, q, memo)?;
             let cell = Cell {
                 roughness_m: s.roughness_m,
@@ -178,12 +264,13 @@ fn match_query<P, G: Grid>(
             };
             (s.point, s.normal, cell, s.normal_var)
         }
-        _ => (
+        (_, Some(n)) => (
             n.point,
             normal_at(grid, frame, n.col, n.row),
             Cell::default(),
             0.0,
         ),
+        (_, None) => unreachable!("a bound only for point-to-surface"),
     };
     let corr = Correspondence {
         moving: *q,
@@ -192,7 +279,33 @@ fn match_query<P, G: Grid>(
         weight: 1.0,
         normal_var,
     };
-    Some((corr, n.distance_m, cell))
+    Some((corr, distance_m, cell))
+}
+
+/// The distance from `q` to the valid pixel right below it when within
+/// `max_m` (then the nearest neighbour is too: its distance is at most this);
+/// None otherwise, for the full search to decide.
+fn below_within<G: Grid>(
+    grid: &mut G,
+    frame: &PixelFrame,
+    q: &Vector3<f64>,
+    max_m: f64,
+    nn: &mut NnStats,
+) -> Option<f64> {
+    let (c, r) = frame.to_pixel(q);
+    if !(c.is_finite() && r.is_finite()) {
+        return None;
+    }
+    let (c, r) = (c.floor() as i64, r.floor() as i64);
+    let h = grid.get(c, r);
+    if h.is_nan() {
+        return None;
+    }
+    nn.pixels_visited += 1;
+    let d = (frame.pixel_point(c, r, h) - q).norm();
+    // a query the full search takes over is counted there
+    nn.queries += u64::from(d <= max_m);
+    (d <= max_m).then_some(d)
 }
 
 impl Association {
@@ -211,5 +324,117 @@ impl Association {
         self.corrs.truncate(kept);
         self.distances_m.truncate(kept);
         self.cells.truncate(kept);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geo::GeoTransform;
+    use crate::grid::{MemGrid, MemPyramid};
+    use crate::rng::SplitMix64;
+    use nalgebra::{Translation3, UnitQuaternion};
+
+    /// A noisy 600 x 600 px surface with walls and voids, and queries over
+    /// it and beyond its edge (some outliers beyond tau).
+    fn scene() -> (MemPyramid, Vec<Vector3<f64>>, PixelFrame) {
+        let gt = GeoTransform::north_up(1000.0, 2000.0, 0.5, 0.5);
+        let mut rng = SplitMix64::new(7);
+        let grid = MemGrid::from_fn(600, 600, gt, |c, r| {
+            if rng.next_f64() < 0.03 {
+                return f32::NAN;
+            }
+            let wall = if (c / 23 + r / 17) % 4 == 0 {
+                12.0
+            } else {
+                0.0
+            };
+            (0.02 * c as f64 + 3.0 * (r as f64 / 40.0).sin() + wall + 0.3 * rng.next_f64()) as f32
+        });
+        let origin = Vector3::new(1150.0, 1850.0, 0.0);
+        let frame = PixelFrame::new(&gt, &origin);
+        let mut points: Vec<Vector3<f64>> = (0..20_000)
+            .map(|_| {
+                let (x, y) = (
+                    rng.next_f64() * 340.0 - 160.0,
+                    rng.next_f64() * 340.0 - 160.0,
+                );
+                let z = if rng.next_f64() < 0.05 {
+                    40.0
+                } else {
+                    rng.next_f64() * 15.0 - 3.0
+                };
+                Vector3::new(x, y, z)
+            })
+            .collect();
+        block_order(&mut points, &frame, 256);
+        (MemPyramid::build(grid, 64), points, frame)
+    }
+
+    /// The outlier rule decided by the pixel below (Bound) keeps exactly the
+    /// matches of the full search (Exact), with distances at least the
+    /// nearest neighbour's; both read through windows, so they are also
+    /// checked against a search without any (one query per call).
+    #[test]
+    fn a_bound_keeps_the_matches_of_the_full_search() {
+        let (pyramid, points, frame) = scene();
+        let t = Isometry3::from_parts(
+            Translation3::new(0.7, -0.4, 0.3),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, 0.002),
+        );
+        let matcher = |distances| Matcher {
+            reference: &pyramid,
+            level: 0,
+            frame,
+            tau_m: 10.0,
+            metric: Metric::PointToSurface,
+            distances,
+        };
+        let memo = || vec![PlaneMemo::default(); points.len()];
+        let exact = associate(&matcher(Distances::Exact), &points, &mut memo(), &t).unwrap();
+        let bound = associate(&matcher(Distances::Bound), &points, &mut memo(), &t).unwrap();
+        assert!(exact.corrs.len() > 10_000, "{}", exact.corrs.len());
+        assert_eq!(exact.corrs.len(), bound.corrs.len());
+        assert_eq!(exact.with_reference_below, bound.with_reference_below);
+        for k in 0..exact.corrs.len() {
+            let (a, b) = (&exact.corrs[k], &bound.corrs[k]);
+            assert_eq!(
+                (a.moving, a.reference, a.normal),
+                (b.moving, b.reference, b.normal)
+            );
+            assert!(bound.distances_m[k] >= exact.distances_m[k]);
+        }
+        let (b, e) = (bound.nn.pixels_visited, exact.nn.pixels_visited);
+        assert!(b < e, "pixels visited: bound {b}, exact {e}");
+        // one query per call: its window is its own, or none at all
+        let mut grid = pyramid.open_level(0).unwrap();
+        let m = matcher(Distances::Exact);
+        let mut k = 0;
+        for p in points.iter().step_by(97) {
+            let q = t.transform_point(&Point3::from(*p)).coords;
+            let single = match_query(
+                &mut grid,
+                &m,
+                &q,
+                &mut PlaneMemo::default(),
+                &mut NnStats::default(),
+            );
+            let batched = exact.corrs.iter().position(|c| c.moving == q);
+            match (single, batched) {
+                (Some((corr, d, _)), Some(i)) => {
+                    assert_eq!(
+                        (corr.reference, d),
+                        (exact.corrs[i].reference, exact.distances_m[i])
+                    );
+                    k += 1;
+                }
+                (None, None) => {}
+                (s, b) => panic!(
+                    "query {q:?}: alone {:?}, in its block {b:?}",
+                    s.map(|s| s.1)
+                ),
+            }
+        }
+        assert!(k > 100, "{k}");
     }
 }

@@ -1,9 +1,14 @@
 //! The classic ICP loop on one fixed point set (Xu & Qin 2024, Sec. 3.1):
-//! associate, weight, fit, update, until [`Convergence::converged`] or something
-//! breaks (too few matches, a degenerate fit, a run-away motion).
+//! associate, weight, fit, update, until [`Convergence::converged`], two steps
+//! in a row within a tenth of the fit's standard errors (the noise floor,
+//! where association flips jitter the estimate by millimetres), or something
+//! breaks (too few matches, a degenerate fit, a run-away motion). The next
+//! estimate is the plain step's end or Anderson's jump along a steady creep
+//! (`accelerate`); the stopping rules judge the plain step.
 
 use nalgebra::Isometry3;
 
+use super::accelerate::Anderson;
 use super::associate::Association;
 use super::robust::{smooth_only, weighted};
 use super::{IcpConfig, IcpError, IcpStatus, Metric};
@@ -75,6 +80,13 @@ pub(super) struct Rules {
     pub cap_m: f64,
 }
 
+impl Rules {
+    /// A translation from the start beyond the cap: the loop runs away.
+    fn moved_too_far(&self, t: &Isometry3<f64>) -> bool {
+        (t.translation.vector - self.start.translation.vector).norm() > self.cap_m
+    }
+}
+
 /// The loop on one point set, matched by `associate` at a given estimate.
 pub(super) fn iterate(
     mut t_ref_moving: Isometry3<f64>,
@@ -89,6 +101,9 @@ pub(super) fn iterate(
         ..Phase::default()
     };
     let mut recent: Vec<Isometry3<f64>> = vec![t_ref_moving];
+    // steps below two tolerances are the loop's jitter: taken plain
+    let mut accelerate = Anderson::new(&t_ref_moving, stop.lever_m, 2.0 * stop.tolerance_m);
+    let mut was_quiet = false;
     for _ in 0..config.max_iter {
         phase.iterations += 1;
         // 1. associate: exact grid NN of every query, beyond tau dropped
@@ -112,25 +127,53 @@ pub(super) fn iterate(
             phase.sigma = sigma;
         }
         phase.constraint_ratio = step.constraint_ratio;
-        // 4. update the estimate and check the stopping rule
-        t_ref_moving = step.update * t_ref_moving;
-        phase.t_ref_moving = t_ref_moving;
-        tracing::trace!(t = ?t_ref_moving.translation.vector, n = corrs.len(), "iteration");
-        let moved = t_ref_moving.translation.vector - rules.start.translation.vector;
-        if moved.norm() > rules.cap_m {
+        // 4. update the estimate and check the stopping rule (on the plain step)
+        let plain = step.update * t_ref_moving;
+        phase.t_ref_moving = plain;
+        tracing::trace!(t = ?plain.translation.vector, n = corrs.len(), "iteration");
+        if rules.moved_too_far(&plain) {
             phase.status = IcpStatus::Diverged;
             break;
         }
-        recent.push(t_ref_moving);
-        if stop.converged(&step.update, &recent) {
+        recent.push(plain);
+        // two steps in a row within a tenth of the fit's standard errors: the
+        // loop walks in its own noise (association flips), nothing to gain
+        let quiet = step
+            .sigma
+            .as_ref()
+            .is_some_and(|s| within_noise(&step.update, s));
+        let at_noise_floor = quiet && was_quiet;
+        was_quiet = quiet;
+        if at_noise_floor || stop.converged(&step.update, &recent) {
             phase.status = IcpStatus::Converged;
             break;
         }
+        // 5. the next estimate: the plain step's end or Anderson's jump (never
+        // beyond the cap)
+        let next = accelerate.next(&t_ref_moving, &plain);
+        t_ref_moving = if rules.moved_too_far(&next) {
+            plain
+        } else {
+            next
+        };
     }
     if phase.status == IcpStatus::MaxIterations {
         settle(&mut phase, &recent);
     }
     Ok(phase)
+}
+
+/// A step this share of the fit's standard errors is the noise floor.
+pub(super) const NOISE_SHARE: f64 = 0.1;
+
+/// True when every axis of `update` is within [`NOISE_SHARE`] of its
+/// standard error (a held axis, with none, must not move).
+fn within_noise(update: &Isometry3<f64>, sigma: &FitSigma) -> bool {
+    let (t, r) = (update.translation.vector, update.rotation.scaled_axis());
+    (0..3).all(|k| {
+        t[k].abs() <= NOISE_SHARE * sigma.trans_m[k] + 1e-12
+            && r[k].abs() <= NOISE_SHARE * sigma.rot_deg[k].to_radians() + 1e-15
+    })
 }
 
 /// Iterates averaged when a loop runs out of iterations without a trend.

@@ -4,7 +4,7 @@
 
 use nalgebra::{Isometry3, UnitQuaternion, Vector3};
 
-use super::associate::{block_order, Association, Matcher};
+use super::associate::{block_order, Association, Distances, Matcher};
 use super::config::{LADDER_SAMPLES, PAPER_TAU_M};
 use super::final_rule;
 use super::iterate::{iterate, Convergence, Phase, Rules};
@@ -110,6 +110,7 @@ impl<'a, R: Pyramid> Level<'a, R> {
             frame: PixelFrame::new(&ref_gt, origin),
             tau_m,
             metric: config.metric,
+            distances: Distances::Bound,
         };
         block_order(&mut self.samples, &matcher.frame, 256);
         let stop = Convergence {
@@ -128,8 +129,12 @@ impl<'a, R: Pyramid> Level<'a, R> {
             &mut nn,
         )?;
         let t_ref_moving = phase.t_ref_moving;
+        let exact = Matcher {
+            distances: Distances::Exact,
+            ..matcher
+        };
         let final_association = match_at(
-            &matcher,
+            &exact,
             &self.samples,
             &mut full_memo,
             &t_ref_moving,
@@ -149,10 +154,10 @@ impl<'a, R: Pyramid> Level<'a, R> {
     }
 }
 
-/// Sample ladder: with many samples, converge on an even subset first (every
-/// k-th point in chunk order), then refine on all of them; the final
-/// iterations, and so the result, use every sample. Returns the last phase and
-/// the iterations of all phases.
+/// Sample ladder: with at least twice [`LADDER_SAMPLES`], converge on an even
+/// subset first (every k-th point in chunk order), then refine on all of them
+/// (their ring planes carried over); the final iterations, and so the result,
+/// use every sample. Returns the last phase and the iterations of all phases.
 fn ladder<R: Pyramid>(
     matcher: &Matcher<'_, R>,
     points: &[Vector3<f64>],
@@ -162,34 +167,39 @@ fn ladder<R: Pyramid>(
     (config, rules): (&IcpConfig, &Rules),
     nn: &mut NnStats,
 ) -> Result<(Phase, usize), IcpError> {
-    let stride = points.len().div_ceil(LADDER_SAMPLES);
-    let subset: Vec<Vector3<f64>> = if stride >= 2 {
-        points.iter().step_by(stride).copied().collect()
+    // a subset only when it is at most half the samples (50,116 samples of
+    // a 50,000 request are one phase, not two of 25,058 and 50,116)
+    let stride = if points.len() >= 2 * LADDER_SAMPLES {
+        points.len().div_ceil(LADDER_SAMPLES)
     } else {
-        Vec::new()
+        1
     };
-    let mut subset_memo = vec![PlaneMemo::default(); subset.len()];
-    let mut phases: Vec<(&[Vector3<f64>], &mut [PlaneMemo])> = Vec::new();
-    if !subset.is_empty() {
-        phases.push((&subset, &mut subset_memo));
-    }
-    phases.push((points, full_memo));
-    let mut phase = Phase::default();
     let mut iterations = 0;
-    for (points, memo) in phases {
-        let min_inliers = 30.max(points.len() / 100);
-        phase = iterate(t_ref_moving, min_inliers, stop, config, rules, &mut |t| {
-            match_at(matcher, points, memo, t, nn)
+    if stride >= 2 {
+        let subset: Vec<Vector3<f64>> = points.iter().step_by(stride).copied().collect();
+        let mut memo = vec![PlaneMemo::default(); subset.len()];
+        let min_inliers = 30.max(subset.len() / 100);
+        let phase = iterate(t_ref_moving, min_inliers, stop, config, rules, &mut |t| {
+            match_at(matcher, &subset, &mut memo, t, nn)
         })?;
-        t_ref_moving = phase.t_ref_moving;
         iterations += phase.iterations;
         if !matches!(
             phase.status,
             IcpStatus::Converged | IcpStatus::MaxIterations
         ) {
-            break;
+            return Ok((phase, iterations));
+        }
+        t_ref_moving = phase.t_ref_moving;
+        // the subset's ring planes hold for the same points of the full set
+        for (full, kept) in full_memo.iter_mut().step_by(stride).zip(memo) {
+            *full = kept;
         }
     }
+    let min_inliers = 30.max(points.len() / 100);
+    let phase = iterate(t_ref_moving, min_inliers, stop, config, rules, &mut |t| {
+        match_at(matcher, points, full_memo, t, nn)
+    })?;
+    iterations += phase.iterations;
     Ok((phase, iterations))
 }
 

@@ -13,6 +13,7 @@
 //! (exact grid NN matches, parallel over blocks), `restart` and `backward`
 //! (two checks of the answer whose gaps beyond the noise join its covariance).
 
+mod accelerate;
 pub mod associate;
 mod backward;
 pub mod config;

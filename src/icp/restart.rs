@@ -101,10 +101,23 @@ fn restart_by<R: Pyramid, M: Pyramid>(
         ..config.clone()
     };
     let mut check = RestartCheck::default();
+    // the two restarts are independent: run side by side (each is parallel
+    // over its blocks too; this fills the serial parts of the other), kept
+    // in the order + then -
+    let run = |sign: f64| {
+        restart(
+            reference,
+            moving,
+            config,
+            &forward,
+            &(direction * (sign * step_m)),
+            limits,
+        )
+    };
+    let (plus, minus) = rayon::join(|| run(1.0), || run(-1.0));
     let mut restarts = Vec::with_capacity(2);
-    for sign in [1.0, -1.0] {
-        let push = direction * (sign * step_m);
-        match restart(reference, moving, config, &forward, &push, limits) {
+    for ran in [plus, minus] {
+        match ran {
             Ok(r) if !matches!(r.status, IcpStatus::TooFewInliers | IcpStatus::Diverged) => {
                 restarts.push(r)
             }

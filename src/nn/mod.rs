@@ -13,15 +13,18 @@
 //!
 //! Files: [`frame`] (local metres <-> pixel lattice), [`search`] (the ring
 //! search), [`surface`] (the bilinear surface below a query and its tangent
-//! plane, grid normals), `plane` (the robust window plane fit both use).
+//! plane, grid normals), `plane` (the robust window plane fit both use), [`window`] (a block's
+//! share of the reference, copied once for its searches).
 
 pub mod frame;
 mod plane;
 pub mod search;
 pub mod surface;
+pub mod window;
 
 pub use frame::PixelFrame;
 pub use search::{nearest, Neighbour, NnStats};
 pub use surface::{
     normal_at, surface_below, surface_below_memo, PlaneMemo, SurfacePoint, NORMAL_RADIUS_PX,
 };
+pub use window::Window;

@@ -6,6 +6,7 @@ use nalgebra::Vector3;
 use super::frame::PixelFrame;
 use super::surface::NORMAL_RADIUS_PX;
 use crate::grid::Grid;
+use crate::select;
 
 /// A least-squares plane around a pixel: z = z0 + a dx + b dy, with dx, dy in
 /// metres from that pixel's centre (y up).
@@ -68,8 +69,11 @@ pub(super) fn plane_fit<G: Grid + ?Sized>(
     for (i, &(x, y, z)) in pts[..n].iter().enumerate() {
         abs_res[i] = (z - first.height_at(x, y)).abs();
     }
-    let mut scratch = abs_res;
-    let median = *scratch[..n].select_nth_unstable_by(n / 2, f64::total_cmp).1;
+    let mut keys = [0u64; 49];
+    for (k, r) in keys.iter_mut().zip(&abs_res[..n]) {
+        *k = select::key(*r);
+    }
+    let median = select::kth_smallest(&mut keys[..n], n / 2);
     let limit = (3.0 * 1.4826 * median).max(0.05);
     let mut dropped = 0;
     for i in 0..n {

@@ -193,36 +193,6 @@ impl<'a> StoreGrid<'a> {
     pub fn take_chunk_error(&mut self) -> Option<ChunkReadError> {
         self.error.take()
     }
-
-    /// The `w x h` window with top-left pixel (col0, row0), row-major; NaN
-    /// outside the raster.
-    pub fn read_window(&mut self, col0: i64, row0: i64, w: usize, h: usize) -> Vec<f32> {
-        let mut out = vec![f32::NAN; w * h];
-        let c0 = col0.max(0);
-        let c1 = (col0 + w as i64).min(self.width);
-        let r0 = row0.max(0);
-        let r1 = (row0 + h as i64).min(self.height);
-        if c0 >= c1 || r0 >= r1 {
-            return out;
-        }
-        let (cy0, cx0) = self.chunk_of(c0, r0);
-        let (cy1, cx1) = self.chunk_of(c1 - 1, r1 - 1);
-        let c = self.chunk;
-        for cy in cy0..=cy1 {
-            for cx in cx0..=cx1 {
-                let (ys, ye) = ((cy * c).max(r0), ((cy + 1) * c).min(r1));
-                let (xs, xe) = ((cx * c).max(c0), ((cx + 1) * c).min(c1));
-                let chunk = self.fetch(cy, cx);
-                for row in ys..ye {
-                    let src = ((row - cy * c) as usize) * chunk.width + (xs - cx * c) as usize;
-                    let dst = ((row - row0) as usize) * w + (xs - col0) as usize;
-                    let n = (xe - xs) as usize;
-                    out[dst..dst + n].copy_from_slice(&chunk.data[src..src + n]);
-                }
-            }
-        }
-        out
-    }
 }
 
 impl Grid for StoreGrid<'_> {
@@ -259,5 +229,34 @@ impl Grid for StoreGrid<'_> {
 
     fn take_error(&mut self) -> Option<GridError> {
         self.error.take().map(GridError::Chunk)
+    }
+
+    /// Whole rows copied from each chunk.
+    fn read_window(&mut self, col0: i64, row0: i64, w: usize, h: usize) -> Vec<f32> {
+        let mut out = vec![f32::NAN; w * h];
+        let c0 = col0.max(0);
+        let c1 = (col0 + w as i64).min(self.width);
+        let r0 = row0.max(0);
+        let r1 = (row0 + h as i64).min(self.height);
+        if c0 >= c1 || r0 >= r1 {
+            return out;
+        }
+        let (cy0, cx0) = self.chunk_of(c0, r0);
+        let (cy1, cx1) = self.chunk_of(c1 - 1, r1 - 1);
+        let c = self.chunk;
+        for cy in cy0..=cy1 {
+            for cx in cx0..=cx1 {
+                let (ys, ye) = ((cy * c).max(r0), ((cy + 1) * c).min(r1));
+                let (xs, xe) = ((cx * c).max(c0), ((cx + 1) * c).min(c1));
+                let chunk = self.fetch(cy, cx);
+                for row in ys..ye {
+                    let src = ((row - cy * c) as usize) * chunk.width + (xs - cx * c) as usize;
+                    let dst = ((row - row0) as usize) * w + (xs - col0) as usize;
+                    let n = (xe - xs) as usize;
+                    out[dst..dst + n].copy_from_slice(&chunk.data[src..src + n]);
+                }
+            }
+        }
+        out
     }
 }
