@@ -214,6 +214,14 @@ mod tests {
             unmasked.view(pyramid(), 0).open_level(0).unwrap().get(7, 7),
             77.0
         );
+        // a window reads as pixel by pixel: moved, masked, NaN off the raster
+        let window = level.read_window(-1, 2, 10, 3);
+        for (i, v) in window.iter().enumerate() {
+            let (col, row) = (-1 + (i % 10) as i64, 2 + (i / 10) as i64);
+            let one = level.get(col, row);
+            assert!(*v == one || (v.is_nan() && one.is_nan()), "({col}, {row})");
+        }
+        assert!(window.iter().any(|v| v.is_nan()) && window.iter().any(|v| !v.is_nan()));
     }
 
     #[test]

@@ -60,7 +60,7 @@ impl PixelFrame {
         self.gsd_y_m
     }
 
-    pub fn gsd_min_m(&self) -> f64 {
+    pub(super) fn gsd_min_m(&self) -> f64 {
         self.gsd_x_m.min(self.gsd_y_m)
     }
 
