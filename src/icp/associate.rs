@@ -181,7 +181,10 @@ fn match_block<P: Pyramid>(
     // them together) read it through one window
     let mut start = 0;
     while start < queries.len() {
-        let run = tiles[start..].partition_point(|t| *t == tiles[start]);
+        let run = tiles[start..]
+            .iter()
+            .take_while(|t| **t == tiles[start])
+            .count();
         let run = start..start + run;
         let mut grid = if run.len() >= MIN_WINDOW_RUN {
             let bounds = pixel_box(&matcher.frame, &queries[run.clone()]);
