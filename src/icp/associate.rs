@@ -13,7 +13,7 @@ use super::Metric;
 use crate::fit::Correspondence;
 use crate::grid::{Grid, GridError, Pyramid};
 use crate::nn::{
-    nearest, normal_at, surface_below_memo, NnStats, PixelFrame, PlaneMemo, Window,
+    nearest, normal_at, surface_below_memo, within_below, NnStats, PixelFrame, PlaneMemo, Window,
     NORMAL_RADIUS_PX,
 };
 
@@ -243,7 +243,7 @@ fn match_query<P, G: Grid>(
     let frame = &matcher.frame;
     let bound = match (matcher.metric, matcher.distances) {
         (Metric::PointToSurface, Distances::Bound) => {
-            below_within(grid, frame, q, matcher.tau_m, nn)
+            within_below(grid, frame, q, matcher.tau_m, nn)
         }
         _ => None,
     };
@@ -283,32 +283,6 @@ fn match_query<P, G: Grid>(
         normal_var,
     };
     Some((corr, distance_m, cell))
-}
-
-/// The distance from `q` to the valid pixel right below it when within
-/// `max_m` (then the nearest neighbour is too: its distance is at most this);
-/// None otherwise, for the full search to decide.
-fn below_within<G: Grid>(
-    grid: &mut G,
-    frame: &PixelFrame,
-    q: &Vector3<f64>,
-    max_m: f64,
-    nn: &mut NnStats,
-) -> Option<f64> {
-    let (c, r) = frame.to_pixel(q);
-    if !(c.is_finite() && r.is_finite()) {
-        return None;
-    }
-    let (c, r) = (c.floor() as i64, r.floor() as i64);
-    let h = grid.get(c, r);
-    if h.is_nan() {
-        return None;
-    }
-    nn.pixels_visited += 1;
-    let d = (frame.pixel_point(c, r, h) - q).norm();
-    // a query the full search takes over is counted there
-    nn.queries += u64::from(d <= max_m);
-    (d <= max_m).then_some(d)
 }
 
 impl Association {

@@ -23,7 +23,7 @@ pub mod surface;
 pub mod window;
 
 pub use frame::PixelFrame;
-pub use search::{nearest, Neighbour, NnStats};
+pub use search::{nearest, within_below, Neighbour, NnStats};
 pub use surface::{
     normal_at, surface_below, surface_below_memo, PlaneMemo, SurfacePoint, NORMAL_RADIUS_PX,
 };

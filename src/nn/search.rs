@@ -82,6 +82,33 @@ pub fn nearest<G: Grid + ?Sized>(
     }
 }
 
+/// Whether the nearest neighbour of `q` lies within `max_m`, settled by the
+/// bound alone (module doc of [`crate::nn`]): the distance to the valid pixel
+/// right below `q` when within `max_m` (the nearest neighbour is at most that
+/// far); None otherwise, for [`nearest`] to decide. A query settled here is
+/// counted in `nn`; one left to [`nearest`] is counted there.
+pub fn within_below<G: Grid + ?Sized>(
+    grid: &mut G,
+    frame: &PixelFrame,
+    q: &Vector3<f64>,
+    max_m: f64,
+    nn: &mut NnStats,
+) -> Option<f64> {
+    let (c, r) = frame.to_pixel(q);
+    if !(c.is_finite() && r.is_finite()) {
+        return None;
+    }
+    let (c, r) = (c.floor() as i64, r.floor() as i64);
+    let h = grid.get(c, r);
+    if h.is_nan() {
+        return None;
+    }
+    nn.pixels_visited += 1;
+    let d = (frame.pixel_point(c, r, h) - q).norm();
+    nn.queries += u64::from(d <= max_m);
+    (d <= max_m).then_some(d)
+}
+
 /// The running best of one search.
 struct Best {
     neighbour: Option<Neighbour>,
@@ -233,6 +260,30 @@ mod tests {
                     (Some(a), Some(b)) => prop_assert!((a - b).abs() < 1e-9, "fast {a} slow {b}"),
                     (None, None) => {}
                     (a, b) => prop_assert!(false, "fast {a:?} slow {b:?}"),
+                }
+            }
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+        /// A query the pixel below settles has its nearest neighbour within
+        /// the same cap and no farther than the bound.
+        #[test]
+        fn the_pixel_below_bounds_the_nearest(
+            seed in any::<u64>(), nodata in 0.0f64..0.9, wall in 0.0f32..15.0,
+            qs in proptest::collection::vec((-3.0f64..15.0, -15.0f64..3.0, -5.0f64..25.0), 1..30),
+            cap in 0.5f64..6.0,
+        ) {
+            let mut grid = random_grid(12, 12, seed, nodata, wall);
+            let frame = PixelFrame::new(&grid.geotransform, &Vector3::new(1000.0, 2000.0, 0.0));
+            let mut stats = NnStats::default();
+            for (x, y, z) in qs {
+                let q = Vector3::new(x, y, z);
+                if let Some(bound) = within_below(&mut grid, &frame, &q, cap, &mut stats) {
+                    let n = nearest(&mut grid, &frame, &q, cap, &mut stats);
+                    prop_assert!(bound <= cap);
+                    prop_assert!(n.is_some_and(|n| n.distance_m <= bound + 1e-12), "{bound} {n:?}");
                 }
             }
         }
