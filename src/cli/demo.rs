@@ -297,7 +297,7 @@ fn fuse_and_eval(
     ))?;
     Ok([
         conclusion::fuse_line(&fused),
-        conclusion::eval_line(fused_rmse["full"], fused_rmse["none"]),
+        conclusion::eval_line(fused_rmse["full"], fused_rmse["none"], fused_rmse["truth"]),
     ])
 }
 
