@@ -10,12 +10,15 @@
 //! back), [`sample`] (stratified query points), `level` (one rung of the ladder:
 //! sample, run, judge), `iterate` (the loop on one screen: associate, weight,
 //! fit, converged), `robust` (roughness filter, Tukey weights), [`associate`]
-//! (exact grid NN matches, parallel over blocks), `restart` and `backward`
-//! (two checks of the answer whose gaps beyond the noise join its covariance).
+//! (exact grid NN matches, parallel over blocks), `choice` (the best of the
+//! starts' results; an ambiguous pair's spread joins its covariance), `restart`
+//! and `backward` (two checks of the answer whose gaps beyond the noise join
+//! its covariance).
 
 mod accelerate;
 pub mod associate;
 mod backward;
+mod choice;
 pub mod config;
 pub mod floor;
 mod iterate;
@@ -39,6 +42,7 @@ pub use crate::geo::rigid::to_rows as matrix_rows;
 
 use crate::fit::{DegeneracyRule, WallSnap};
 use crate::grid::{Grid, Pyramid};
+use choice::choose;
 use iterate::Rules;
 use level::{start_level, Level};
 use start::{find_starts, moved_overlap, Start, Starts};
@@ -113,51 +117,6 @@ fn check_backward<R: Pyramid, M: Pyramid>(
             forward
         }
     }
-}
-
-/// The best of the results from several starts: usable before not, then the
-/// lowest robust cost. With several, the ambiguity becomes the ratio of the
-/// two best costs among results at different places, and a ratio above
-/// [`AMBIGUOUS_COST_RATIO`] makes the pair `Ambiguous`.
-fn choose(mut tried: Vec<(IcpResult, f64)>, ambiguity: Option<f64>, pixel_m: f64) -> IcpResult {
-    let rank = |r: &(IcpResult, f64)| (!r.0.status.is_converged_or_held(), r.1);
-    tried.sort_by(|a, b| {
-        let (ka, kb) = (rank(a), rank(b));
-        ka.0.cmp(&kb.0).then(ka.1.total_cmp(&kb.1))
-    });
-    let several = tried.len() > 1;
-    let mut tried = tried.into_iter();
-    let (mut best, best_cost) = tried.next().expect("at least one start");
-    best.ambiguity = ambiguity;
-    if !several {
-        return best;
-    }
-    let elsewhere =
-        tried.find(|(r, _)| r.status.is_converged_or_held() && differs(&best, r, pixel_m));
-    best.ambiguity = Some(match &elsewhere {
-        Some((_, cost)) if *cost > 0.0 => (best_cost / cost).min(1.0),
-        _ => 0.0,
-    });
-    if best.status.is_converged_or_held() && best.ambiguity.unwrap_or(0.0) > AMBIGUOUS_COST_RATIO {
-        best.status = IcpStatus::Ambiguous;
-    }
-    best
-}
-
-/// True when two results put the moving DSM more than a pixel apart along an
-/// axis the best one measures (a held axis may differ freely).
-fn differs(best: &IcpResult, other: &IcpResult, pixel_m: f64) -> bool {
-    let at = best
-        .information
-        .as_ref()
-        .map(|i| i.centroid)
-        .unwrap_or_else(Vector3::zeros);
-    let p = nalgebra::Point3::from(at);
-    let d = best.t_ref_moving.transform_point(&p) - other.t_ref_moving.transform_point(&p);
-    (0..3).any(|k| {
-        let held = best.degenerate.iter().any(|a| a.index() == k);
-        !held && d[k].abs() > pixel_m
-    })
 }
 
 /// The coarse-to-fine ladder from one start; the result and its robust cost.

@@ -1,0 +1,163 @@
+//! The best of the starts' results, and what the others say about it.
+//!
+//! When the global search is ambiguous, the ladder runs from each of its best
+//! few peaks. The lowest robust cost wins; results at other places whose cost
+//! is within [`AMBIGUOUS_COST_RATIO`] of it make the pair `Ambiguous`. The
+//! winner's sandwich covariance is the curvature of its own basin only: on
+//! featureless ground (sparse stereo, fields) nearly equal basins lie metres
+//! apart, the winner is a coin toss among them, and its 7 cm would be 18
+//! sigma off half the time (20 x 20 grid of 128 m tiles, sparse TIN
+//! rendering). So the spread of the nearly-as-good places about the winner,
+//! the between-component covariance of an equal mixture (1/K sum d_k d_k^T
+//! over the K places, the winner's d = 0), joins its covariance: the graph
+//! learns from the pair what all its places agree on (height, tilt, often one
+//! horizontal direction) and not the coin toss.
+
+use nalgebra::{Matrix6, Point3, Vector3};
+
+use super::backward::{inflate, Disagreement};
+use super::{IcpResult, IcpStatus, AMBIGUOUS_COST_RATIO};
+
+/// The best of the results from several starts: usable before not, then the
+/// lowest robust cost. With several, the ambiguity becomes the ratio of the
+/// two best costs among results at different places, and a ratio above
+/// [`AMBIGUOUS_COST_RATIO`] makes the pair `Ambiguous`, with the spread of
+/// the places that fit nearly as well added to its covariance ([`spread`]).
+pub(super) fn choose(
+    mut tried: Vec<(IcpResult, f64)>,
+    ambiguity: Option<f64>,
+    pixel_m: f64,
+) -> IcpResult {
+    let rank = |r: &(IcpResult, f64)| (!r.0.status.is_converged_or_held(), r.1);
+    tried.sort_by(|a, b| {
+        let (ka, kb) = (rank(a), rank(b));
+        ka.0.cmp(&kb.0).then(ka.1.total_cmp(&kb.1))
+    });
+    let several = tried.len() > 1;
+    let mut tried = tried.into_iter();
+    let (mut best, best_cost) = tried.next().expect("at least one start");
+    best.ambiguity = ambiguity;
+    if !several {
+        return best;
+    }
+    let others: Vec<(IcpResult, f64)> = tried.collect();
+    let elsewhere = others
+        .iter()
+        .find(|(r, _)| r.status.is_converged_or_held() && differs(&best, r, pixel_m));
+    best.ambiguity = Some(match elsewhere {
+        Some((_, cost)) if *cost > 0.0 => (best_cost / cost).min(1.0),
+        _ => 0.0,
+    });
+    if best.status.is_converged_or_held() && best.ambiguity.unwrap_or(0.0) > AMBIGUOUS_COST_RATIO {
+        best.status = IcpStatus::Ambiguous;
+        let rivals: Vec<&IcpResult> = others
+            .iter()
+            .filter(|(r, cost)| {
+                r.status.is_converged_or_held() && best_cost / cost > AMBIGUOUS_COST_RATIO
+            })
+            .map(|(r, _)| r)
+            .collect();
+        if let Some(extra) = spread(&best, &rivals) {
+            let info = best.information.as_mut().expect("spread needs information");
+            inflate(info, &extra);
+        }
+    }
+    best
+}
+
+/// The between-place covariance of an equal mixture of `best` and `rivals`
+/// about `best`, at its centroid and in its axes (shift m, rotation rad):
+/// 1/K sum d_k d_k^T, K = 1 + rivals. None without information or rivals.
+fn spread(best: &IcpResult, rivals: &[&IcpResult]) -> Option<Matrix6<f64>> {
+    let at = best.information.as_ref()?.centroid;
+    if rivals.is_empty() {
+        return None;
+    }
+    let sum: Matrix6<f64> = rivals
+        .iter()
+        .map(|r| {
+            let d = Disagreement::between(&best.t_ref_moving, &r.t_ref_moving.inverse(), &at);
+            let gap = d.gap();
+            gap * gap.transpose()
+        })
+        .sum();
+    Some(sum / (rivals.len() + 1) as f64)
+}
+
+/// True when two results put the moving DSM more than a pixel apart along an
+/// axis the best one measures (a held axis may differ freely).
+fn differs(best: &IcpResult, other: &IcpResult, pixel_m: f64) -> bool {
+    let at = best
+        .information
+        .as_ref()
+        .map(|i| i.centroid)
+        .unwrap_or_else(Vector3::zeros);
+    let p = Point3::from(at);
+    let d = best.t_ref_moving.transform_point(&p) - other.t_ref_moving.transform_point(&p);
+    (0..3).any(|k| {
+        let held = best.degenerate.iter().any(|a| a.index() == k);
+        !held && d[k].abs() > pixel_m
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fit::FitInformation;
+    use nalgebra::{Isometry3, Translation3, Vector6};
+
+    /// A converged result `dx` metres east of the identity with a 5 cm, 0.01
+    /// degree covariance (information to match) at the origin.
+    fn at(dx: f64) -> IcpResult {
+        let diagonal = Vector6::new(0.05f64, 0.05, 0.01, 1.7e-4, 1.7e-4, 1.7e-4).map(|s| s * s);
+        let covariance = Matrix6::from_diagonal(&diagonal);
+        IcpResult {
+            information: Some(FitInformation {
+                info_6x6: Matrix6::from_diagonal(&diagonal.map(|v| 1.0 / v)),
+                covariance_6x6: covariance,
+                sigma: [
+                    Some(0.05),
+                    Some(0.05),
+                    Some(0.01),
+                    Some(0.01),
+                    Some(0.01),
+                    Some(0.01),
+                ],
+                degenerate: Vec::new(),
+                centroid: Vector3::zeros(),
+                effective_samples: 1.0,
+                radius_m: 50.0,
+                gridding_6x6: Matrix6::zeros(),
+            }),
+            ..IcpResult::converged_at(
+                Isometry3::from_parts(Translation3::new(dx, 0.0, 0.0), Default::default()),
+                [0.0; 3],
+            )
+        }
+    }
+
+    /// Two places 4 m apart at nearly the same cost: the pair is ambiguous and
+    /// its x sigma covers the other place (equal mixture: 4 / sqrt 2 m); y and
+    /// z keep their own sigmas. A clear winner keeps its covariance.
+    #[test]
+    fn an_ambiguous_pair_carries_the_spread_of_its_places() {
+        let chosen = choose(vec![(at(4.0), 0.30), (at(0.0), 0.29)], Some(0.95), 0.5);
+        assert_eq!(chosen.status, IcpStatus::Ambiguous);
+        assert!(
+            (chosen.t_ref_moving.translation.x - 0.0).abs() < 1e-12,
+            "the cheaper place wins"
+        );
+        let sigma = chosen.information.as_ref().unwrap().sigma;
+        let expected = (0.05f64.powi(2) + 16.0 / 2.0).sqrt();
+        assert!((sigma[0].unwrap() - expected).abs() < 1e-9, "{sigma:?}");
+        assert!((sigma[1].unwrap() - 0.05).abs() < 1e-9, "{sigma:?}");
+        assert!((sigma[2].unwrap() - 0.01).abs() < 1e-9, "{sigma:?}");
+
+        let clear = choose(vec![(at(4.0), 0.60), (at(0.0), 0.29)], Some(0.5), 0.5);
+        assert_eq!(clear.status, IcpStatus::Converged);
+        assert_eq!(clear.information.as_ref().unwrap().sigma[0], Some(0.05));
+        // the same place twice is not ambiguous
+        let same = choose(vec![(at(0.1), 0.30), (at(0.0), 0.29)], Some(0.95), 0.5);
+        assert_eq!(same.status, IcpStatus::Converged);
+    }
+}
