@@ -9,6 +9,7 @@ use nalgebra::{Matrix4, Vector3, Vector4};
 use super::output::{Truth, TruthTile};
 use crate::fit::{point_to_point, Correspondence, Model};
 use crate::geo::rigid::{from_rows, rotation, rotation_angle_deg};
+use crate::geo::GeoTransform;
 use crate::poses::PosesFile;
 
 /// Over every pair of tiles, the disagreement of M_i^-1 M_j with the truth's,
@@ -84,6 +85,53 @@ impl Truth {
             for (_, t_b_inv, e_b, centre) in &posed[a + 1..] {
                 let d = t_b_inv * left * e_b;
                 let disp = (d * centre - centre).xyz().norm();
+                sum += disp;
+                n += 1;
+                worst_m = worst_m.max(disp);
+                worst_deg = worst_deg.max(angle_deg(&d));
+            }
+        }
+        PairwiseError {
+            mean_m: sum / n.max(1) as f64,
+            worst_m,
+            worst_deg,
+        }
+    }
+
+    /// Like [`Truth::pairwise_error`], over the pairs of tiles whose rasters
+    /// overlap only, each measured at the worst corner of the overlap
+    /// rectangle (at the pivot height): how far apart two corrected DSMs are
+    /// where they meet, the seams of a mosaic. All pairs also count DSMs
+    /// kilometres apart, where one DSM's rotation error, extrapolated over the
+    /// distance, dominates.
+    pub fn overlap_error(&self, poses: &PosesFile) -> PairwiseError {
+        let (mut sum, mut n, mut worst_m, mut worst_deg) = (0.0, 0usize, 0.0f64, 0.0f64);
+        let posed: Vec<_> = self
+            .tiles
+            .iter()
+            .filter_map(|t| {
+                let e = *poses.pose(&t.id)?;
+                let m = matrix(&t.matrix_world);
+                let bounds = GeoTransform(t.geotransform).bounds(t.width, t.height);
+                Some((m * inverse(&e), inverse(&m), e, bounds))
+            })
+            .collect();
+        let z = self.pivot_z();
+        for (a, (left, .., ba)) in posed.iter().enumerate() {
+            for (_, t_b_inv, e_b, bb) in &posed[a + 1..] {
+                let (x0, y0) = (ba[0].max(bb[0]), ba[1].max(bb[1]));
+                let (x1, y1) = (ba[2].min(bb[2]), ba[3].min(bb[3]));
+                if x0 >= x1 || y0 >= y1 {
+                    continue;
+                }
+                let d = t_b_inv * left * e_b;
+                let disp = [(x0, y0), (x1, y0), (x0, y1), (x1, y1)]
+                    .iter()
+                    .map(|&(x, y)| {
+                        let c = Vector4::new(x, y, z, 1.0);
+                        (d * c - c).xyz().norm()
+                    })
+                    .fold(0.0f64, f64::max);
                 sum += disp;
                 n += 1;
                 worst_m = worst_m.max(disp);
@@ -237,5 +285,33 @@ mod tests {
         assert!(e.tiles[1].1 > 0.05 && e.tiles[1].1 < 0.1, "{e:?}");
         assert!(e.tiles[0].1 < 0.05 && e.tiles[2].1 < 0.05, "{e:?}");
         assert!((e.worst_m - e.tiles[1].1).abs() < 1e-12);
+        // t0 and t2 (600 m apart) do not overlap: both pairs that do hold t1
+        let seams = t.overlap_error(&poses(&off));
+        assert!((seams.mean_m - 0.1).abs() < 1e-6, "{seams:?}");
+        assert!((seams.worst_m - 0.1).abs() < 1e-6, "{seams:?}");
+        assert!(t.overlap_error(&poses(&est)).worst_m < 1e-6);
+    }
+
+    /// A rotation error of one DSM, extrapolated to a DSM a kilometre away,
+    /// weighs more in all pairs than at the seams: t0 turned 0.05 deg about
+    /// its centre moves t2's centre (600 m off) 0.52 m, its seam with t1 (a
+    /// corner 354 m off) 0.31 m.
+    #[test]
+    fn overlapping_pairs_measure_the_seams_only() {
+        let ms = [rigid([0.0; 3], 0.0); 3];
+        let t = truth(&ms);
+        let c = t.centre(&t.tiles[0]).xyz();
+        let turn = Isometry3::rotation_wrt_point(
+            UnitQuaternion::from_euler_angles(0.0, 0.0, 0.05f64.to_radians()),
+            c.into(),
+        )
+        .to_homogeneous();
+        let est = poses(&[("t0", turn), ("t1", ms[1]), ("t2", ms[2])]);
+        let all = t.pairwise_error(&est);
+        let seams = t.overlap_error(&est);
+        let arc = |r: f64| r * 0.05f64.to_radians();
+        assert!((all.worst_m - arc(600.0)).abs() < 1e-3, "{all:?}");
+        let corner = (250.0f64.powi(2) + 250.0f64.powi(2)).sqrt();
+        assert!((seams.worst_m - arc(corner)).abs() < 1e-3, "{seams:?}");
     }
 }

@@ -67,6 +67,7 @@ pub fn run(a: ScoreArgs) -> Result<(), String> {
     }
     let per_dsm = truth.per_dsm_error(&poses);
     let pairwise = truth.pairwise_error(&poses);
+    let seams = truth.overlap_error(&poses);
     let table = calibration(&edges);
     let mut worst: Vec<(f64, &EdgeError)> = edges
         .iter()
@@ -103,6 +104,11 @@ pub fn run(a: ScoreArgs) -> Result<(), String> {
                 "worst_m": pairwise.worst_m,
                 "worst_deg": pairwise.worst_deg,
             },
+            "overlapping": {
+                "mean_m": seams.mean_m,
+                "worst_m": seams.worst_m,
+                "worst_deg": seams.worst_deg,
+            },
             "per_dsm_sigma": dsm_cover,
             "edges": {"count": edges.len(), "worst_shift_m": worst_edge_m},
             "calibration": table,
@@ -130,6 +136,12 @@ pub fn run(a: ScoreArgs) -> Result<(), String> {
         pairwise.mean_m,
         pairwise.worst_m,
         pairwise.worst_deg
+    );
+    say!(
+        "overlapping pairs (worst corner of the overlap): mean {:.4} m, worst {:.4} m / {:.4} deg",
+        seams.mean_m,
+        seams.worst_m,
+        seams.worst_deg
     );
     if edges.is_empty() {
         print_worst_dsms(&worst_dsms, &by_id);
