@@ -83,8 +83,13 @@ impl Truth {
             .as_ref()
             .map(|info| info.reported_covariance_6x6());
         let sigma = std::array::from_fn(|k| {
-            let v = record.information.as_ref()?.covariance[k][k];
-            if v <= HELD_VARIANCE {
+            let info = record.information.as_ref()?;
+            // a held axis may keep a trace of variance where the measured
+            // directions mix it with another (x with pitch on a strip): the
+            // fit's list says what it held, as `pair` reports it (no sigma)
+            if info.covariance[k][k] <= HELD_VARIANCE
+                || info.degenerate.iter().any(|a| a.index() == k)
+            {
                 return None;
             }
             Some(standard_error(&reported?, k))
@@ -216,5 +221,13 @@ mod tests {
         let table = calibration(&[e]);
         assert_eq!((table[2].with_sigma, table[2].held), (0, 1));
         assert_eq!(table[0].within, [0.0, 0.0, 1.0]);
+        // x held by the fit, with the trace of variance a mixed direction leaves
+        let mut held = record.clone();
+        let info = held.information.as_mut().unwrap();
+        info.covariance[0][0] = 1e-10;
+        info.degenerate = vec![crate::fit::Axis::X];
+        let e = truth.edge_error(&held).unwrap();
+        assert_eq!(e.sigma[0], None, "{e:?}");
+        assert!(e.sigma[1].is_some());
     }
 }
