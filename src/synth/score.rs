@@ -46,6 +46,42 @@ fn angle_deg(m: &Matrix4<f64>) -> f64 {
     rotation_angle_deg(&rotation(m))
 }
 
+/// A posed tile of [`Truth::posed`].
+struct Posed<'a> {
+    left: Matrix4<f64>,
+    truth_inv: Matrix4<f64>,
+    est: Matrix4<f64>,
+    tile: &'a TruthTile,
+}
+
+/// Sums of pairwise errors.
+#[derive(Default)]
+struct Tally {
+    sum: f64,
+    n: usize,
+    worst_m: f64,
+    worst_deg: f64,
+}
+
+impl Tally {
+    fn add(&mut self, disp: f64, d: &Matrix4<f64>) {
+        self.sum += disp;
+        self.n += 1;
+        self.worst_m = self.worst_m.max(disp);
+        self.worst_deg = self.worst_deg.max(angle_deg(d));
+    }
+}
+
+impl From<Tally> for PairwiseError {
+    fn from(t: Tally) -> Self {
+        PairwiseError {
+            mean_m: t.sum / t.n.max(1) as f64,
+            worst_m: t.worst_m,
+            worst_deg: t.worst_deg,
+        }
+    }
+}
+
 impl Truth {
     fn pivot_z(&self) -> f64 {
         self.pivot_z_m.unwrap_or(200.0)
@@ -62,40 +98,43 @@ impl Truth {
         )
     }
 
-    /// See [`PairwiseError`]; tiles without a pose are skipped.
-    pub fn pairwise_error(&self, poses: &PosesFile) -> PairwiseError {
-        let (mut sum, mut n, mut worst_m, mut worst_deg) = (0.0, 0usize, 0.0f64, 0.0f64);
-        // Per posed tile, once (a lookup per pair made 10^4 tiles take over 10 min):
-        // d = truth_ab^-1 E_a^-1 E_b = T_b^-1 (T_a E_a^-1) E_b.
+    /// Each posed tile once, in truth.json order, as (T_a E_a^-1, T_a^-1, E_a,
+    /// tile): the relative error of a pair is then d = truth_ab^-1 E_a^-1 E_b
+    /// = T_b^-1 (T_a E_a^-1) E_b (a lookup per pair made 10^4 tiles take over
+    /// 10 min).
+    fn posed<'a>(&'a self, poses: &PosesFile) -> Vec<Posed<'a>> {
         let index: std::collections::HashMap<&str, &Matrix4<f64>> = poses
             .poses
             .iter()
             .map(|p| (p.id.as_str(), &p.matrix_world))
             .collect();
-        let posed: Vec<_> = self
-            .tiles
+        self.tiles
             .iter()
             .filter_map(|t| {
                 let e = *index.get(t.id.as_str())?;
                 let m = matrix(&t.matrix_world);
-                Some((m * inverse(e), inverse(&m), *e, self.centre(t)))
+                Some(Posed {
+                    left: m * inverse(e),
+                    truth_inv: inverse(&m),
+                    est: *e,
+                    tile: t,
+                })
             })
-            .collect();
-        for (a, (left, ..)) in posed.iter().enumerate() {
-            for (_, t_b_inv, e_b, centre) in &posed[a + 1..] {
-                let d = t_b_inv * left * e_b;
-                let disp = (d * centre - centre).xyz().norm();
-                sum += disp;
-                n += 1;
-                worst_m = worst_m.max(disp);
-                worst_deg = worst_deg.max(angle_deg(&d));
+            .collect()
+    }
+
+    /// See [`PairwiseError`]; tiles without a pose are skipped.
+    pub fn pairwise_error(&self, poses: &PosesFile) -> PairwiseError {
+        let posed = self.posed(poses);
+        let mut tally = Tally::default();
+        for (k, a) in posed.iter().enumerate() {
+            for b in &posed[k + 1..] {
+                let d = b.truth_inv * a.left * b.est;
+                let centre = self.centre(b.tile);
+                tally.add((d * centre - centre).xyz().norm(), &d);
             }
         }
-        PairwiseError {
-            mean_m: sum / n.max(1) as f64,
-            worst_m,
-            worst_deg,
-        }
+        tally.into()
     }
 
     /// Like [`Truth::pairwise_error`], over the pairs of tiles whose rasters
@@ -105,26 +144,22 @@ impl Truth {
     /// kilometres apart, where one DSM's rotation error, extrapolated over the
     /// distance, dominates.
     pub fn overlap_error(&self, poses: &PosesFile) -> PairwiseError {
-        let (mut sum, mut n, mut worst_m, mut worst_deg) = (0.0, 0usize, 0.0f64, 0.0f64);
-        let posed: Vec<_> = self
-            .tiles
+        let posed = self.posed(poses);
+        let bounds: Vec<[f64; 4]> = posed
             .iter()
-            .filter_map(|t| {
-                let e = *poses.pose(&t.id)?;
-                let m = matrix(&t.matrix_world);
-                let bounds = GeoTransform(t.geotransform).bounds(t.width, t.height);
-                Some((m * inverse(&e), inverse(&m), e, bounds))
-            })
+            .map(|p| GeoTransform(p.tile.geotransform).bounds(p.tile.width, p.tile.height))
             .collect();
         let z = self.pivot_z();
-        for (a, (left, .., ba)) in posed.iter().enumerate() {
-            for (_, t_b_inv, e_b, bb) in &posed[a + 1..] {
+        let mut tally = Tally::default();
+        for (k, a) in posed.iter().enumerate() {
+            for (b, bb) in posed[k + 1..].iter().zip(&bounds[k + 1..]) {
+                let ba = &bounds[k];
                 let (x0, y0) = (ba[0].max(bb[0]), ba[1].max(bb[1]));
                 let (x1, y1) = (ba[2].min(bb[2]), ba[3].min(bb[3]));
                 if x0 >= x1 || y0 >= y1 {
                     continue;
                 }
-                let d = t_b_inv * left * e_b;
+                let d = b.truth_inv * a.left * b.est;
                 let disp = [(x0, y0), (x1, y0), (x0, y1), (x1, y1)]
                     .iter()
                     .map(|&(x, y)| {
@@ -132,17 +167,10 @@ impl Truth {
                         (d * c - c).xyz().norm()
                     })
                     .fold(0.0f64, f64::max);
-                sum += disp;
-                n += 1;
-                worst_m = worst_m.max(disp);
-                worst_deg = worst_deg.max(angle_deg(&d));
+                tally.add(disp, &d);
             }
         }
-        PairwiseError {
-            mean_m: sum / n.max(1) as f64,
-            worst_m,
-            worst_deg,
-        }
+        tally.into()
     }
 
     /// See [`PerDsmError`]; tiles without a pose are skipped. None with fewer
