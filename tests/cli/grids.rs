@@ -2,8 +2,8 @@
 //! targets: many narrow overlaps, weak pairs, three renderings and seeds per
 //! grid. Ignored (each collection takes 4-7 minutes on 2 cores); run with
 //! `cargo test --release --test cli -- --ignored grids`. The figures in each
-//! test's comment are docs/measurements.md's ("The rotation prior weighed by
-//! what the data are worth").
+//! test's comment are docs/measurements.md's ("Ambiguous pairs carry their
+//! spread; seams measured").
 
 use crate::util::{assert_ok, bin, dsmgen, dsmgen_tiles, ingest};
 
@@ -16,6 +16,10 @@ struct Scored {
     worst_deg: f64,
     /// Fractions of DSMs within 3 of their shift and rotation sigmas.
     within_3_sigma: [f64; 2],
+    /// Worst relative error where two DSMs overlap (the seams), m.
+    seams_m: f64,
+    /// The least fraction of journaled pairs within 3 sigma over x, y and z.
+    pairs_within_3_sigma: f64,
 }
 
 /// A `rows` x `rows` grid of `size` px tiles (`dsmgen tiles --layout grid`,
@@ -74,23 +78,32 @@ fn align_grid(rows: &str, size: &str, seed: &str, render: &str) -> Scored {
             f(&v["per_dsm_sigma"]["shift"][2]),
             f(&v["per_dsm_sigma"]["rotation"][2]),
         ],
+        seams_m: f(&v["overlapping"]["worst_m"]),
+        pairs_within_3_sigma: (0..3)
+            .map(|k| f(&v["calibration"][k]["within"][2]))
+            .fold(1.0, f64::min),
     };
     let what = format!(
-        "{rows} x {rows} seed {seed} {render}: median {} m, worst {} m / {} deg, within 3 sigma {:?}",
-        scored.median_m, scored.worst_m, scored.worst_deg, scored.within_3_sigma
+        "{rows} x {rows} seed {seed} {render}: median {} m, worst {} m / {} deg, within 3 sigma {:?}, \
+         seams {} m, pairs within 3 sigma (x, y, z) >= {}",
+        scored.median_m,
+        scored.worst_m,
+        scored.worst_deg,
+        scored.within_3_sigma,
+        scored.seams_m,
+        scored.pairs_within_3_sigma
     );
     eprintln!("{what}");
     Scored { what, ..scored }
 }
 
 /// 20 x 20 DSMs of 128 m (256 px) with 38 m overlaps: per DSM median
-/// <= 0.08 m, worst <= 0.25 m and 0.05 deg, every DSM within 3 of its sigmas.
-/// Measured 2026-12-04: seed 3 centre 0.0644 / 0.2456 m / 0.0455 deg, seed 5
-/// lidar-max 0.0487 / 0.1809 m / 0.0421 deg. (Seed 7 in the sparse TIN
-/// rendering, 0.5 points per pixel, reaches the median, 0.060 m, not the
-/// worst: 0.80 m, two DSMs beyond 3 sigma, pulled by confidently wrong
-/// ambiguous pairs; with every ambiguous pair dropped still 0.71 m:
-/// `grids_of_400_sparse_tin_dsms_meet_the_median`.)
+/// <= 0.08 m, worst <= 0.25 m and 0.05 deg, every DSM within 3 of its sigmas,
+/// 99 % of the pairs within 3 sigma on x, y and z. Measured 2026-12-04 (cc27c84):
+/// seed 3 centre 0.0618 / 0.2480 m / 0.0439 deg, pairs >= 0.990; seed 5
+/// lidar-max 0.0519 / 0.2221 m / 0.0428 deg, >= 0.992. (Seed 7 in the sparse
+/// TIN rendering, 0.5 points per pixel, reaches the median, 0.060 m, not the
+/// worst: 0.43 m, 2.2 sigma: `grids_of_400_sparse_tin_dsms_meet_the_median`.)
 #[test]
 #[ignore]
 fn grids_of_400_dsms_of_128_m_meet_the_targets() {
@@ -99,20 +112,27 @@ fn grids_of_400_dsms_of_128_m_meet_the_targets() {
         assert!(s.median_m <= 0.08, "{}", s.what);
         assert!(s.worst_m <= 0.25 && s.worst_deg <= 0.05, "{}", s.what);
         assert!(s.within_3_sigma == [1.0, 1.0], "{}", s.what);
+        assert!(s.pairs_within_3_sigma >= 0.99, "{}", s.what);
     }
 }
 
 /// The sparse TIN rendering of the 20 x 20 grid (seed 7): the median target
-/// holds and the worst DSM stays under a metre (measured 0.0599 / 0.8029 m).
+/// holds, the worst DSM stays under half a metre, every DSM within 3 of its
+/// sigmas and 99 % of the pairs too (measured 0.0596 / 0.4309 m, pairs >= 0.992;
+/// before ambiguous pairs carried their spread: 0.8029 m, pairs >= 0.981).
 #[test]
 #[ignore]
 fn grids_of_400_sparse_tin_dsms_meet_the_median() {
     let s = align_grid("20", "256", "7", "tin");
-    assert!(s.median_m <= 0.08 && s.worst_m < 1.0, "{}", s.what);
+    assert!(s.median_m <= 0.08 && s.worst_m < 0.5, "{}", s.what);
+    assert!(s.within_3_sigma == [1.0, 1.0], "{}", s.what);
+    assert!(s.pairs_within_3_sigma >= 0.99, "{}", s.what);
 }
 
 /// 10 x 10 DSMs of 256 m (512 px) with 77 m overlaps: per DSM worst
-/// <= 0.10 m, every DSM within 3 of its sigmas.
+/// <= 0.10 m, every DSM within 3 of its sigmas, overlapping DSMs within
+/// 0.15 m of each other at every corner of their overlap (measured 0.0613 /
+/// 0.0425 / 0.0333 m, seams 0.120 / 0.057 / 0.047 m).
 #[test]
 #[ignore]
 fn grids_of_100_dsms_of_256_m_meet_the_targets() {
@@ -120,5 +140,6 @@ fn grids_of_100_dsms_of_256_m_meet_the_targets() {
         let s = align_grid("10", "512", seed, render);
         assert!(s.worst_m <= 0.10, "{}", s.what);
         assert!(s.within_3_sigma == [1.0, 1.0], "{}", s.what);
+        assert!(s.seams_m <= 0.15, "{}", s.what);
     }
 }
