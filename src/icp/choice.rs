@@ -5,9 +5,9 @@
 //! is within [`AMBIGUOUS_COST_RATIO`] of it make the pair `Ambiguous`. The
 //! winner's sandwich covariance is the curvature of its own basin only: on
 //! featureless ground (sparse stereo, fields) nearly equal basins lie metres
-//! apart, the winner is a coin toss among them, and its 7 cm would be 18
-//! sigma off half the time (20 x 20 grid of 128 m tiles, sparse TIN
-//! rendering). So the spread of the nearly-as-good places about the winner,
+//! apart and the winner is a coin toss among them: tile_264 -> tile_265 of
+//! the 20 x 20 grid of 128 m tiles in the sparse TIN rendering reported x to
+//! 7 cm and was 1.3 m (18 sigma) off. So the spread of the nearly-as-good places about the winner,
 //! the between-component covariance of an equal mixture (1/K sum d_k d_k^T
 //! over the K places, the winner's d = 0), joins its covariance: the graph
 //! learns from the pair what all its places agree on (height, tilt, often one
