@@ -235,8 +235,9 @@ fn table(reference: &str, moving: &str, r: &IcpResult, pose: &CentredPose, secon
     if let Some(c) = &r.restart {
         let _ = writeln!(
             t,
-            "restarts    {} of 2 ran, the farthest ended {:.3} m from the answer ({} beyond the noise{}){}",
+            "restarts    {} of {} ran, the farthest ended {:.3} m from the answer ({} beyond the noise{}){}",
             c.ran,
+            c.tried,
             c.gap_m,
             c.beyond_noise,
             if c.beyond_noise > 0 { ", added to the sigmas" } else { "" },

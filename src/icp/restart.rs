@@ -1,6 +1,6 @@
 //! The restart check of a pair: the full-resolution loop run again from the
 //! answer pushed a few pixels along its weakest horizontal direction, once
-//! each way.
+//! each way (and across it, when those find the minimum not unique).
 //!
 //! A sandwich standard error is the curvature of the cost at the minimum the
 //! loop settled in. On a narrow strip of small city tiles that minimum is a
@@ -15,6 +15,14 @@
 //! When both restarts settle together and away from the answer, the ladder sat
 //! in a side notch (it came in from one start): the place both sides fall
 //! into becomes the answer, with the restart's own information.
+//!
+//! A pair found not unique along its weakest direction has side basins, and
+//! they can lie along its well-measured direction too; so can those of a pair
+//! the data fix across to worse than the gridding floor (on the sparse TIN
+//! grid of 128 m tiles, two pairs sat 1.1 and 3.9 m off along their
+//! well-measured x at 14 sigma). Such pairs are checked the same way across.
+//! Pairs pinned down to the floor with one minimum (the well-posed 0.5-1 km
+//! pairs) pay for two restarts only.
 
 use nalgebra::{Isometry3, Matrix2, Matrix6, Translation3, UnitQuaternion, Vector3};
 
@@ -30,6 +38,11 @@ use crate::grid::Pyramid;
 pub const RESTART_PIXELS: f64 = 2.0;
 /// Restart gaps below this many pixels are the loop's convergence scatter.
 pub const MIN_GAP_PIXELS: f64 = 0.1;
+/// A fit whose own standard error across its weakest horizontal direction is
+/// within this many pixels (the default gridding floor) sits in one sharp
+/// minimum there (the 0.5-1 km well-posed pairs: 0.02 pixel); above it, the
+/// restarts go across as well.
+pub const PINNED_ACROSS_PIXELS: f64 = 0.05;
 
 /// The weakest measured horizontal direction of `result` (unit, x and y) and
 /// its standard error, metres; None without information or with both
@@ -54,7 +67,10 @@ fn weakest_horizontal(result: &IcpResult) -> Option<(Vector3<f64>, f64)> {
 
 /// Runs the restart check on `forward` and folds it into its covariance.
 /// Only for answers with information that ran to an end (not diverged, not
-/// too few matches); a restart that cannot run is skipped.
+/// too few matches); a restart that cannot run is skipped. A pair whose
+/// minimum proves not unique along its weakest direction (a gap joined the
+/// covariance, or the answer moved) is a pair with side basins, which can
+/// lie along its well-measured direction too: it is checked across as well.
 pub(super) fn check_restarts<R: Pyramid, M: Pyramid>(
     reference: &R,
     moving: &M,
@@ -72,14 +88,52 @@ pub(super) fn check_restarts<R: Pyramid, M: Pyramid>(
         return forward;
     };
     let step_m = (RESTART_PIXELS * limits.0).max(3.0 * sigma_m);
-    restart_by(
+    let checked = restart_by(
         reference,
         moving,
         config,
         forward,
         (direction, step_m),
         limits,
-    )
+    );
+    let across = Vector3::new(-direction.y, direction.x, 0.0);
+    let pinned = sigma_along(&checked, &across)
+        .is_none_or(|sigma_m| sigma_m <= PINNED_ACROSS_PIXELS * limits.0);
+    if pinned && !checked.restart.is_some_and(|c| c.found_side_basins()) {
+        return checked;
+    }
+    check_across(reference, moving, config, checked, &direction, limits)
+}
+
+/// The restart check across the horizontal unit `weakest` on `checked` (whose
+/// restart check along it is merged with this one's).
+fn check_across<R: Pyramid, M: Pyramid>(
+    reference: &R,
+    moving: &M,
+    config: &IcpConfig,
+    checked: IcpResult,
+    weakest: &Vector3<f64>,
+    limits: (f64, f64),
+) -> IcpResult {
+    let across = Vector3::new(-weakest.y, weakest.x, 0.0);
+    let Some(sigma_m) = sigma_along(&checked, &across) else {
+        return checked;
+    };
+    let first = checked.restart.unwrap_or_default();
+    let step_m = (RESTART_PIXELS * limits.0).max(3.0 * sigma_m);
+    let mut checked = restart_by(reference, moving, config, checked, (across, step_m), limits);
+    if let Some(second) = checked.restart.as_mut() {
+        *second = first.and(second);
+    }
+    checked
+}
+
+/// The standard error of `result` along the horizontal unit `direction`,
+/// metres; None without information.
+fn sigma_along(result: &IcpResult, direction: &Vector3<f64>) -> Option<f64> {
+    let c = result.information.as_ref()?.covariance_6x6;
+    let variance = (direction.transpose() * c.fixed_view::<3, 3>(0, 0) * direction)[(0, 0)];
+    (variance > 0.0 && variance.is_finite()).then(|| variance.sqrt())
 }
 
 /// The restart check with pushes of `step_m` along `direction`.
@@ -125,6 +179,7 @@ fn restart_by<R: Pyramid, M: Pyramid>(
             Err(e) => tracing::debug!(error = %e, "restart could not run"),
         }
     }
+    check.tried = 2;
     check.ran = restarts.len();
     // both restarts settle together and away from the answer: the ladder sat
     // in a side notch, and the basin both sides fall into is the answer
@@ -165,6 +220,7 @@ fn restart_by<R: Pyramid, M: Pyramid>(
             check.beyond_noise += 1;
         }
         if widens(&test, d.shift_m.norm(), limits.0) {
+            check.widened += 1;
             inflate(info, &d.model_error(&test));
         }
     }
@@ -317,16 +373,21 @@ mod tests {
         1.5 * (y * std::f64::consts::TAU / 8.0).sin() + 5.0 * (x / 9.0).sin()
     }
 
-    fn restarted(surface: fn(f64, f64) -> f64, push_m: f64) -> (IcpResult, IcpResult) {
-        let truth = Vector3::new(0.3, -0.2, 0.4);
-        let (reference, moving) = pair(surface, truth);
-        // near the truth: the ridges repeat, the search would be ambiguous
-        let config = IcpConfig {
+    /// Translation only, at full resolution, searched within a metre: the
+    /// ridges repeat, a wider search would be ambiguous.
+    fn near_the_truth() -> IcpConfig {
+        IcpConfig {
             model: crate::fit::Model::Translation,
             max_level: 0,
             max_displacement_m: 1.0,
             ..IcpConfig::default()
-        };
+        }
+    }
+
+    fn restarted(surface: fn(f64, f64) -> f64, push_m: f64) -> (IcpResult, IcpResult) {
+        let truth = Vector3::new(0.3, -0.2, 0.4);
+        let (reference, moving) = pair(surface, truth);
+        let config = near_the_truth();
         let forward = crate::icp::register(&reference, &moving, &config).unwrap();
         let at = nalgebra::Point3::from(forward.information.as_ref().unwrap().centroid);
         let shift = forward.t_ref_moving.transform_point(&at) - at;
@@ -369,6 +430,36 @@ mod tests {
         assert!(sigma(&checked, 1) > 2.0, "{:?}", checked.information);
         // the gap is along y: x and z keep nearly their noise
         assert!(sigma(&checked, 0) < 3.0 * sigma(&forward, 0) + 0.05);
+    }
+
+    /// A pair whose weakest direction has side basins is checked across it
+    /// as well (four restarts); the across check of relief with one minimum
+    /// leaves the answer where it was.
+    #[test]
+    fn side_basins_along_the_weakest_direction_send_restarts_across() {
+        let (forward, checked) = restarted(ridges, 5.0);
+        let along = checked.restart.unwrap();
+        assert!(along.found_side_basins() && along.tried == 2, "{along:?}");
+        let config = near_the_truth();
+        let (reference, moving) = pair(ridges, Vector3::new(0.3, -0.2, 0.4));
+        let across = check_across(
+            &reference,
+            &moving,
+            &config,
+            checked.clone(),
+            &Vector3::y(),
+            (0.5, 10.0),
+        );
+        let both = across.restart.unwrap();
+        assert_eq!((both.tried, both.ran), (4, 4), "{both:?}");
+        assert!(both.widened >= along.widened && both.gap_m >= along.gap_m);
+        assert_eq!(both.moved_m, 0.0, "{both:?}");
+        let x = |r: &IcpResult| r.t_ref_moving.translation.vector.x;
+        assert!((x(&across) - x(&forward)).abs() < 1e-3);
+        // one sharp minimum: no side basins, no restarts across
+        let (forward, unique) = restarted(hills, 1.0);
+        assert!(!unique.restart.unwrap().found_side_basins());
+        assert_eq!(forward.restart.map(|c| c.tried), Some(2));
     }
 
     #[test]

@@ -95,7 +95,8 @@ pub struct IcpResult {
     /// `icp::backward`).
     pub backward: Option<BackwardCheck>,
     /// What the restart check (the full-resolution loop run again from the
-    /// answer pushed both ways along its weakest horizontal direction) found;
+    /// answer pushed both ways along its weakest horizontal direction, then
+    /// across it when the minimum proved not unique) found;
     /// None when it did not run. Gaps beyond the noise are part of the
     /// covariance (see `icp::restart`).
     pub restart: Option<RestartCheck>,
@@ -110,11 +111,37 @@ pub struct RestartCheck {
     pub gap_m: f64,
     /// Restarts whose gap was beyond the noise (their gap is in the covariance).
     pub beyond_noise: usize,
-    /// Restarts that ran to an answer (of two).
+    /// Restarts started: two along the weakest horizontal direction, two
+    /// more across it when those found the minimum not unique.
+    pub tried: usize,
+    /// Restarts that ran to an answer.
     pub ran: usize,
+    /// Restarts whose gap joined the covariance (beyond the noise, or beyond
+    /// the loop's convergence scatter).
+    pub widened: usize,
     /// How far the answer moved because both restarts settled together
     /// elsewhere, metres at the fit's centroid (0: the ladder's answer stands).
     pub moved_m: f64,
+}
+
+impl RestartCheck {
+    /// The minimum proved not unique: a gap joined the covariance, or the
+    /// answer moved to where both restarts settled.
+    pub fn found_side_basins(&self) -> bool {
+        self.widened > 0 || self.moved_m > 0.0
+    }
+
+    /// This check followed by `later` (run from this one's answer).
+    pub fn and(self, later: &RestartCheck) -> RestartCheck {
+        RestartCheck {
+            gap_m: self.gap_m.max(later.gap_m),
+            beyond_noise: self.beyond_noise + later.beyond_noise,
+            tried: self.tried + later.tried,
+            ran: self.ran + later.ran,
+            widened: self.widened + later.widened,
+            moved_m: self.moved_m.max(later.moved_m),
+        }
+    }
 }
 
 /// The forward answer against the inverse of the backward one, at the fit's centroid.
