@@ -98,13 +98,10 @@ fn align_grid(rows: &str, size: &str, seed: &str, render: &str) -> Scored {
 }
 
 /// 20 x 20 DSMs of 128 m (256 px) with 38 m overlaps: per DSM median
-/// <= 0.08 m, worst <= 0.25 m and 0.05 deg, every DSM within 3 of its sigmas;
-/// pairs within 3 sigma on x, y and z: the issue asks 99 %, seed 3 misses it
-/// by one pair (y: 787 of 795, 0.98994), so 0.985 here. Measured 2026-12-04
-/// (cc27c84): seed 3 centre 0.0618 / 0.2480 m / 0.0439 deg, pairs >= 0.98994;
-/// seed 5 lidar-max 0.0519 / 0.2221 m / 0.0428 deg, >= 0.992. (Seed 7 in the sparse
-/// TIN rendering, 0.5 points per pixel, reaches the median, 0.060 m, not the
-/// worst: 0.43 m, 2.2 sigma: `grids_of_400_sparse_tin_dsms_meet_the_median`.)
+/// <= 0.08 m, worst <= 0.25 m and 0.05 deg, every DSM within 3 of its sigmas,
+/// 99 % of pairs within 3 sigma on x, y and z. Measured 2026-12-05 (687fc02):
+/// seed 3 centre 0.0577 / 0.2234 m / 0.0430 deg, pairs >= 0.991; seed 5
+/// lidar-max 0.0523 / 0.2163 m / 0.0390 deg, pairs >= 0.999.
 #[test]
 #[ignore]
 fn grids_of_400_dsms_of_128_m_meet_the_targets() {
@@ -113,19 +110,23 @@ fn grids_of_400_dsms_of_128_m_meet_the_targets() {
         assert!(s.median_m <= 0.08, "{}", s.what);
         assert!(s.worst_m <= 0.25 && s.worst_deg <= 0.05, "{}", s.what);
         assert!(s.within_3_sigma == [1.0, 1.0], "{}", s.what);
-        assert!(s.pairs_within_3_sigma >= 0.985, "{}", s.what);
+        assert!(s.pairs_within_3_sigma >= 0.99, "{}", s.what);
     }
 }
 
-/// The sparse TIN rendering of the 20 x 20 grid (seed 7): the median target
-/// holds, the worst DSM stays under half a metre, every DSM within 3 of its
-/// sigmas and 99 % of the pairs too (measured 0.0596 / 0.4309 m, pairs >= 0.992;
-/// before ambiguous pairs carried their spread: 0.8029 m, pairs >= 0.981).
+/// The sparse TIN rendering of the 20 x 20 grid (seed 7, 0.5 points per
+/// pixel): the median and worst shift targets hold, every DSM within 3 of its
+/// sigmas and 99 % of the pairs too. Its worst rotation is 0.0509 deg, above
+/// the 0.05 deg target by a thousandth of a degree (a fifth of that DSM's yaw
+/// sigma), so 0.06 here. Measured 2026-12-05 (687fc02): 0.0609 / 0.1983 m /
+/// 0.0509 deg, pairs >= 0.994 (before restarts went across: worst 0.4309 m /
+/// 0.0585 deg, two pairs 14 sigma off in their well-measured direction).
 #[test]
 #[ignore]
-fn grids_of_400_sparse_tin_dsms_meet_the_median() {
+fn grids_of_400_sparse_tin_dsms_meet_the_shift_targets() {
     let s = align_grid("20", "256", "7", "tin");
-    assert!(s.median_m <= 0.08 && s.worst_m < 0.5, "{}", s.what);
+    assert!(s.median_m <= 0.08 && s.worst_m <= 0.25, "{}", s.what);
+    assert!(s.worst_deg < 0.06, "{}", s.what);
     assert!(s.within_3_sigma == [1.0, 1.0], "{}", s.what);
     assert!(s.pairs_within_3_sigma >= 0.99, "{}", s.what);
 }
