@@ -1,6 +1,7 @@
 //! The restart check of a pair: the full-resolution loop run again from the
 //! answer pushed a few pixels along its weakest horizontal direction, once
-//! each way (and across it, when those find the minimum not unique).
+//! each way (and across it, unless the fit is pinned down there and those
+//! find one minimum).
 //!
 //! A sandwich standard error is the curvature of the cost at the minimum the
 //! loop settled in. On a narrow strip of small city tiles that minimum is a
@@ -69,8 +70,8 @@ fn weakest_horizontal(result: &IcpResult) -> Option<(Vector3<f64>, f64)> {
 /// Only for answers with information that ran to an end (not diverged, not
 /// too few matches); a restart that cannot run is skipped. A pair whose
 /// minimum proves not unique along its weakest direction (a gap joined the
-/// covariance, or the answer moved) is a pair with side basins, which can
-/// lie along its well-measured direction too: it is checked across as well.
+/// covariance, or the answer moved), or whose own standard error across it
+/// is above [`PINNED_ACROSS_PIXELS`], is checked across as well.
 pub(super) fn check_restarts<R: Pyramid, M: Pyramid>(
     reference: &R,
     moving: &M,
@@ -87,43 +88,46 @@ pub(super) fn check_restarts<R: Pyramid, M: Pyramid>(
     let Some((direction, sigma_m)) = weakest_horizontal(&forward) else {
         return forward;
     };
-    let step_m = (RESTART_PIXELS * limits.0).max(3.0 * sigma_m);
     let checked = restart_by(
         reference,
         moving,
         config,
         forward,
-        (direction, step_m),
+        (direction, step_m(sigma_m, limits.0)),
         limits,
     );
     let across = Vector3::new(-direction.y, direction.x, 0.0);
-    let pinned = sigma_along(&checked, &across)
-        .is_none_or(|sigma_m| sigma_m <= PINNED_ACROSS_PIXELS * limits.0);
+    let Some(sigma_m) = sigma_along(&checked, &across) else {
+        return checked;
+    };
+    let pinned = sigma_m <= PINNED_ACROSS_PIXELS * limits.0;
     if pinned && !checked.restart.is_some_and(|c| c.found_side_basins()) {
         return checked;
     }
-    check_across(reference, moving, config, checked, &direction, limits)
+    let push = (across, step_m(sigma_m, limits.0));
+    check_across(reference, moving, config, checked, push, limits)
 }
 
-/// The restart check across the horizontal unit `weakest` on `checked` (whose
-/// restart check along it is merged with this one's).
+/// How far a restart starts from the answer along a direction where the fit
+/// has standard error `sigma_m`, at full-resolution pixels of `pixel_m`.
+fn step_m(sigma_m: f64, pixel_m: f64) -> f64 {
+    (RESTART_PIXELS * pixel_m).max(3.0 * sigma_m)
+}
+
+/// The restart check with pushes of `push` (a horizontal unit across the
+/// weakest direction, metres) on `checked`, merged with its check along.
 fn check_across<R: Pyramid, M: Pyramid>(
     reference: &R,
     moving: &M,
     config: &IcpConfig,
     checked: IcpResult,
-    weakest: &Vector3<f64>,
+    push: (Vector3<f64>, f64),
     limits: (f64, f64),
 ) -> IcpResult {
-    let across = Vector3::new(-weakest.y, weakest.x, 0.0);
-    let Some(sigma_m) = sigma_along(&checked, &across) else {
-        return checked;
-    };
-    let first = checked.restart.unwrap_or_default();
-    let step_m = (RESTART_PIXELS * limits.0).max(3.0 * sigma_m);
-    let mut checked = restart_by(reference, moving, config, checked, (across, step_m), limits);
-    if let Some(second) = checked.restart.as_mut() {
-        *second = first.and(second);
+    let along = checked.restart.unwrap_or_default();
+    let mut checked = restart_by(reference, moving, config, checked, push, limits);
+    if let Some(across) = checked.restart.as_mut() {
+        *across = along.and(across);
     }
     checked
 }
@@ -447,7 +451,7 @@ mod tests {
             &moving,
             &config,
             checked.clone(),
-            &Vector3::y(),
+            (Vector3::x(), 1.0),
             (0.5, 10.0),
         );
         let both = across.restart.unwrap();

@@ -96,7 +96,7 @@ pub struct IcpResult {
     pub backward: Option<BackwardCheck>,
     /// What the restart check (the full-resolution loop run again from the
     /// answer pushed both ways along its weakest horizontal direction, then
-    /// across it when the minimum proved not unique) found;
+    /// across it unless pinned down there with one minimum) found;
     /// None when it did not run. Gaps beyond the noise are part of the
     /// covariance (see `icp::restart`).
     pub restart: Option<RestartCheck>,
@@ -112,7 +112,8 @@ pub struct RestartCheck {
     /// Restarts whose gap was beyond the noise (their gap is in the covariance).
     pub beyond_noise: usize,
     /// Restarts started: two along the weakest horizontal direction, two
-    /// more across it when those found the minimum not unique.
+    /// more across it unless the fit is pinned down there (see
+    /// `icp::restart`) and those found one minimum.
     pub tried: usize,
     /// Restarts that ran to an answer.
     pub ran: usize,
