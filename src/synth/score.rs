@@ -126,11 +126,11 @@ impl Truth {
     /// See [`PairwiseError`]; tiles without a pose are skipped.
     pub fn pairwise_error(&self, poses: &PosesFile) -> PairwiseError {
         let posed = self.posed(poses);
+        let centres: Vec<_> = posed.iter().map(|p| self.centre(p.tile)).collect();
         let mut tally = Tally::default();
         for (k, a) in posed.iter().enumerate() {
-            for b in &posed[k + 1..] {
+            for (b, centre) in posed[k + 1..].iter().zip(&centres[k + 1..]) {
                 let d = b.truth_inv * a.left * b.est;
-                let centre = self.centre(b.tile);
                 tally.add((d * centre - centre).xyz().norm(), &d);
             }
         }
@@ -151,9 +151,8 @@ impl Truth {
             .collect();
         let z = self.pivot_z();
         let mut tally = Tally::default();
-        for (k, a) in posed.iter().enumerate() {
+        for (k, (a, ba)) in posed.iter().zip(&bounds).enumerate() {
             for (b, bb) in posed[k + 1..].iter().zip(&bounds[k + 1..]) {
-                let ba = &bounds[k];
                 let (x0, y0) = (ba[0].max(bb[0]), ba[1].max(bb[1]));
                 let (x1, y1) = (ba[2].min(bb[2]), ba[3].min(bb[3]));
                 if x0 >= x1 || y0 >= y1 {
