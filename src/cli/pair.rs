@@ -142,10 +142,17 @@ fn reason(r: &IcpResult) -> String {
             "not converged after {} iterations (raise --max-iter, or the surfaces disagree)",
             r.iterations
         ),
-        IcpStatus::Ambiguous => format!(
-            "ambiguous: another place fits nearly as well (cost ratio {:.2})",
-            r.ambiguity.unwrap_or(f64::NAN)
-        ),
+        IcpStatus::Ambiguous => match &r.second_height {
+            Some(h) => format!(
+                "ambiguous: {:.0} % of the overlap agrees on a height {:+.2} m from the answer (a changed building?)",
+                100.0 * h.share,
+                h.gap_m
+            ),
+            None => format!(
+                "ambiguous: another place fits nearly as well (cost ratio {:.2})",
+                r.ambiguity.unwrap_or(f64::NAN)
+            ),
+        },
         IcpStatus::Diverged => {
             "diverged: the fit grew worse or moved beyond --max-displacement".into()
         }
@@ -246,6 +253,14 @@ fn table(reference: &str, moving: &str, r: &IcpResult, pose: &CentredPose, secon
             } else {
                 String::new()
             }
+        );
+    }
+    if let Some(h) = &r.second_height {
+        let _ = writeln!(
+            t,
+            "heights     {:.0} % of the overlap is {:+.3} m from the answer's height: the pair cannot tell which is ground, the gap is in the sigmas",
+            100.0 * h.share,
+            h.gap_m
         );
     }
     let _ = writeln!(

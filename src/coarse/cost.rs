@@ -115,6 +115,41 @@ pub fn score_residuals(residuals: &mut [f64], min_support: usize) -> ShiftScore 
     }
 }
 
+/// A second height the overlap agrees on: the densest cluster of the height
+/// differences `dh` (H_ref - h, any order) farther than `separation_m` from
+/// `dz_m` (a fit's own height), when it holds at least `min_share` of them. Each
+/// cluster is a window of `2 width_m`; the answer is the median of the best
+/// and how many differences it holds.
+///
+/// A changed building covering more of a small overlap than the ground is
+/// the median's height; the ground is then this second one (`icp::heights`).
+pub fn second_height(
+    dh: &[f64],
+    dz_m: f64,
+    separation_m: f64,
+    width_m: f64,
+    min_share: f64,
+) -> Option<(f64, usize)> {
+    let mut far: Vec<f64> = (dh.iter().copied())
+        .filter(|d| d.is_finite() && (d - dz_m).abs() > separation_m)
+        .collect();
+    far.sort_by(f64::total_cmp);
+    let mut best: Option<(usize, usize)> = None;
+    let mut start = 0;
+    for end in 0..far.len() {
+        while far[end] - far[start] > 2.0 * width_m {
+            start += 1;
+        }
+        if best.is_none_or(|(s, e)| end - start > e - s) {
+            best = Some((start, end));
+        }
+    }
+    let (s, e) = best?;
+    let count = e - s + 1;
+    let support = dh.iter().filter(|d| d.is_finite()).count();
+    (count as f64 >= min_share * support as f64).then(|| (far[s + count / 2], count))
+}
+
 /// Valid pixel centres of `grid` inside `box_m` ([min_x, min_y, max_x, max_y]),
 /// on a regular stride chosen so that about `target` samples are taken.
 pub fn sample_box<G: Grid + ?Sized>(grid: &mut G, box_m: &[f64; 4], target: usize) -> Vec<Sample> {
@@ -173,6 +208,26 @@ mod tests {
         let h = bilinear(&mut g, 3.75, 100.0 - 4.25);
         assert!((h - (2.0 * 3.25 + 3.0 * 3.75)).abs() < 1e-9, "{h}");
         assert!(bilinear(&mut g, -3.0, 50.0).is_nan());
+    }
+
+    /// A roof over 55 % of the overlap takes the median; the ground under the
+    /// other 45 % is the second height. A spread of outliers is none, nor is
+    /// a cluster below the share or within the separation.
+    #[test]
+    fn a_second_cluster_of_height_differences_is_a_second_height() {
+        let noise = |i: usize| 0.1 * ((i * 7919 % 13) as f64 - 6.0) / 6.0;
+        let mut dh: Vec<f64> = (0..550).map(|i| -48.5 + noise(i)).collect();
+        dh.extend((0..450).map(|i| 0.3 + noise(i)));
+        let dz = -48.5;
+        let (second, count) = second_height(&dh, dz, 10.0, 0.5, 0.2).expect("the ground");
+        assert!((second - 0.3).abs() < 0.11, "{second}");
+        assert_eq!(count, 450);
+        assert_eq!(second_height(&dh, dz, 60.0, 0.5, 0.2), None);
+        assert_eq!(second_height(&dh, dz, 10.0, 0.5, 0.5), None);
+        // the same share spread over 40 m is no height
+        let mut spread: Vec<f64> = (0..550).map(noise).collect();
+        spread.extend((0..450).map(|i| 15.0 + 40.0 * i as f64 / 450.0));
+        assert_eq!(second_height(&spread, 0.0, 10.0, 0.5, 0.2), None);
     }
 
     /// The true shift costs nothing whatever the vertical offset; another costs more.

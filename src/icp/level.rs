@@ -311,6 +311,7 @@ impl LevelOutcome {
             ambiguity: None,
             backward: None,
             restart: None,
+            second_height: None,
             nn: NnStatsSummary {
                 queries: self.nn.queries,
                 pixels_visited: self.nn.pixels_visited,

@@ -21,6 +21,7 @@ mod backward;
 mod choice;
 pub mod config;
 pub mod floor;
+mod heights;
 mod iterate;
 mod level;
 mod restart;
@@ -34,7 +35,7 @@ use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 pub use config::{IcpConfig, Metric};
 pub use result::{
     BackwardCheck, CentredPose, CentredSigma, IcpError, IcpResult, IcpStatus, NnStatsSummary,
-    RestartCheck,
+    RestartCheck, SecondHeight,
 };
 
 /// Row-major 4x4 of a transform: [`crate::geo::rigid::to_rows`].
@@ -80,7 +81,9 @@ pub fn register<R: Pyramid, M: Pyramid>(
     let forward = choose(tried, starts.ambiguity, starts.pixel_m);
     let limits = (starts.pixel_m, starts.radius_m);
     let forward = restart::check_restarts(reference, moving, config, forward, limits);
-    let mut result = check_backward(reference, moving, config, &starts, forward);
+    let result = check_backward(reference, moving, config, &starts, forward);
+    let tau_m = config.tau_at(0, starts.pixel_m, starts.starts[0].cost_m);
+    let mut result = heights::check_heights(reference, moving, result, tau_m, starts.pixel_m)?;
     if let Some(info) = result.information.as_mut() {
         floor::apply(info, starts.pixel_m, config.sigma_floor_px);
     }

@@ -100,6 +100,9 @@ pub struct IcpResult {
     /// None when it did not run. Gaps beyond the noise are part of the
     /// covariance (see `icp::restart`).
     pub restart: Option<RestartCheck>,
+    /// A second height of the overlap at the answer (see `icp::heights`):
+    /// when there is one the pair is `Ambiguous`. None without one.
+    pub second_height: Option<SecondHeight>,
     pub nn: NnStatsSummary,
 }
 
@@ -145,6 +148,15 @@ impl RestartCheck {
     }
 }
 
+/// A second height the overlap agrees on, beyond the outlier threshold.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct SecondHeight {
+    /// The second height minus the answer's, metres (reference minus moving).
+    pub gap_m: f64,
+    /// The share of the overlap's height differences at the second height.
+    pub share: f64,
+}
+
 /// The forward answer against the inverse of the backward one, at the fit's centroid.
 #[derive(Clone, Copy, Debug, Serialize)]
 pub struct BackwardCheck {
@@ -188,6 +200,7 @@ impl IcpResult {
             ambiguity: None,
             backward: None,
             restart: None,
+            second_height: None,
             nn: Default::default(),
         }
     }

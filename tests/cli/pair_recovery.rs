@@ -184,3 +184,66 @@ fn offsets_of_tens_of_metres_are_recovered_forward_and_inverse() {
         },
     );
 }
+
+/// fixtures/synth/changed_roof: a changed building covers more of the 19 m
+/// overlap than the ground, and the roof matched to the ground fits as well as
+/// the ground to the ground. The pair must not claim centimetres: it is
+/// ambiguous (exit code 1, a one-line reason), names the second height, and
+/// its sigmas cover the truth in every direction.
+#[test]
+fn a_changed_roof_over_most_of_a_narrow_overlap_is_ambiguous_not_centimetres() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = crate::util::fixtures().join("synth/changed_roof");
+    let store = dir.path().join("s.zarr");
+    crate::util::ingest(
+        &[data.join("tile_299.tif"), data.join("tile_349.tif")],
+        &store,
+    );
+    let out = bin()
+        .arg("pair")
+        .arg(&store)
+        .args(["tile_299", "tile_349", "--json"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.contains("of the overlap agrees on a height"),
+        "{stderr}"
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["status"], "ambiguous");
+    let second = &v["result"]["second_height"];
+    assert!(second["share"].as_f64().unwrap() >= 0.2, "{second}");
+    assert!(second["gap_m"].as_f64().unwrap().abs() > 40.0, "{second}");
+
+    let truth: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(data.join("truth.json")).unwrap()).unwrap();
+    let m = |id: &str| {
+        let tile = truth["tiles"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|t| t["id"] == id);
+        matrix(&tile.unwrap()["matrix_world"])
+    };
+    // p_ref = M_ref^-1 M_moving p_moving; the shift at the fit's centre c is c - T^-1 c
+    let t_true = m("tile_299").try_inverse().unwrap() * m("tile_349");
+    let c = &v["centre_m"];
+    let c = Vector4::new(
+        c[0].as_f64().unwrap(),
+        c[1].as_f64().unwrap(),
+        c[2].as_f64().unwrap(),
+        1.0,
+    );
+    let true_shift = c - t_true.try_inverse().unwrap() * c;
+    for k in 0..3 {
+        let shift = v["shift_m"][k].as_f64().unwrap();
+        let sigma = v["sigma"]["shift_m"][k].as_f64().unwrap();
+        let error = shift - true_shift[k];
+        assert!(
+            error.abs() <= 3.0 * sigma,
+            "axis {k}: {error} m off, sigma {sigma} m"
+        );
+    }
+}
