@@ -2,8 +2,7 @@
 //!
 //! When the global search is ambiguous, the ladder runs from each of its best
 //! few peaks. The lowest robust cost wins; results at other places whose cost
-//! is within [`AMBIGUOUS_COST_RATIO`] of it (or within [`WIDER_COST_RATIO`]
-//! while explaining clearly more of the overlap) make the pair `Ambiguous`. The
+//! is within [`AMBIGUOUS_COST_RATIO`] of it make the pair `Ambiguous`. The
 //! winner's sandwich covariance is the curvature of its own basin only: on
 //! featureless ground (sparse stereo, fields) nearly equal basins lie metres
 //! apart and the winner is a coin toss among them: tile_264 -> tile_265 of
@@ -49,17 +48,15 @@ pub(super) fn choose(
         Some((_, cost)) if *cost > 0.0 => (best_cost / cost).min(1.0),
         _ => 0.0,
     });
-    let rivals: Vec<&IcpResult> = others
-        .iter()
-        .filter(|(r, cost)| {
-            let inliers = r.inliers as f64 / best.inliers.max(1) as f64;
-            r.status.is_converged_or_held() && rivals_best(best_cost / cost, inliers)
-        })
-        .map(|(r, _)| r)
-        .collect();
-    let elsewhere = rivals.iter().any(|r| differs(&best, r, pixel_m));
-    if best.status.is_converged_or_held() && elsewhere {
+    if best.status.is_converged_or_held() && best.ambiguity.unwrap_or(0.0) > AMBIGUOUS_COST_RATIO {
         best.status = IcpStatus::Ambiguous;
+        let rivals: Vec<&IcpResult> = others
+            .iter()
+            .filter(|(r, cost)| {
+                r.status.is_converged_or_held() && best_cost / cost > AMBIGUOUS_COST_RATIO
+            })
+            .map(|(r, _)| r)
+            .collect();
         if let Some(extra) = spread(&best, &rivals) {
             let info = best.information.as_mut().expect("spread needs information");
             inflate(info, &extra);
@@ -67,23 +64,6 @@ pub(super) fn choose(
     }
     best
 }
-
-/// A result at another place with `ratio` = best cost / its cost and
-/// `inliers` = its inliers / the best's rivals the best: its cost is within
-/// [`AMBIGUOUS_COST_RATIO`], or within [`WIDER_COST_RATIO`] while it explains
-/// [`MORE_INLIERS`] times the samples. The cost is the spread of a fit's own
-/// inliers, so a fit that drops what it cannot explain looks cleaner: on a
-/// 50 x 50 grid of 64 m tiles, tile_940 -> tile_941 kept 1,983 inliers at a
-/// cost 0.87 of a place 17.6 m away with 4,141, and that place was the truth.
-fn rivals_best(ratio: f64, inliers: f64) -> bool {
-    ratio > AMBIGUOUS_COST_RATIO || (ratio > WIDER_COST_RATIO && inliers >= MORE_INLIERS)
-}
-
-/// The cost ratio within which a place explaining [`MORE_INLIERS`] times the
-/// samples makes the pair ambiguous.
-pub const WIDER_COST_RATIO: f64 = 0.8;
-/// See [`WIDER_COST_RATIO`].
-pub const MORE_INLIERS: f64 = 1.25;
 
 /// The between-place covariance of an equal mixture of `best` and `rivals`
 /// about `best`, at its centroid and in its axes (shift m, rotation rad):
@@ -179,32 +159,5 @@ mod tests {
         // the same place twice is not ambiguous
         let same = choose(vec![(at(0.1), 0.30), (at(0.0), 0.29)], Some(0.95), 0.5);
         assert_eq!(same.status, IcpStatus::Converged);
-    }
-
-    /// A place 0.85 as clean as the best that explains 1.5 times its samples
-    /// is a rival; with as many samples as the best it is not.
-    #[test]
-    fn a_place_that_explains_more_of_the_overlap_rivals_a_cleaner_fit() {
-        let with = |dx: f64, inliers: usize| IcpResult { inliers, ..at(dx) };
-        let wider = choose(
-            vec![(with(4.0, 3000), 0.34), (with(0.0, 2000), 0.29)],
-            None,
-            0.5,
-        );
-        assert_eq!(wider.status, IcpStatus::Ambiguous);
-        let sigma = wider.information.as_ref().unwrap().sigma;
-        assert!(sigma[0].unwrap() > 2.0, "{sigma:?}");
-        let as_many = choose(
-            vec![(with(4.0, 2000), 0.34), (with(0.0, 2000), 0.29)],
-            None,
-            0.5,
-        );
-        assert_eq!(as_many.status, IcpStatus::Converged);
-        let far_worse = choose(
-            vec![(with(4.0, 3000), 0.40), (with(0.0, 2000), 0.29)],
-            None,
-            0.5,
-        );
-        assert_eq!(far_worse.status, IcpStatus::Converged);
     }
 }
