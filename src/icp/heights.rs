@@ -26,11 +26,13 @@ use crate::grid::{Grid, Pyramid};
 pub const SHARE: f64 = 0.2;
 /// Moving samples of the overlap the check looks at.
 const SAMPLES: usize = 4096;
+/// The check's level keeps at least this many pixels across the overlap.
+const MIN_SIDE_PX: f64 = 64.0;
 
 /// The answer checked for a second height (module docs): unchanged without
 /// one, `Ambiguous` with the spread of the two heights in its covariance with
 /// one. `tau_m` is ICP's outlier threshold at full resolution, `pixel_m` the
-/// coarser DSM's pixel. Only for converged (or held, or already ambiguous)
+/// coarser DSM's full-resolution pixel. Only for converged (or held, or already ambiguous)
 /// answers with information.
 pub(super) fn check_heights<R: Pyramid, M: Pyramid>(
     reference: &R,
@@ -56,6 +58,22 @@ pub(super) fn check_heights<R: Pyramid, M: Pyramid>(
     Ok(result)
 }
 
+/// The coarsest level of `moving` on which an overlap `side_m` across still
+/// spans [`MIN_SIDE_PX`] pixels: a changed building is as tall there, and a
+/// large overlap is read from a few chunks, not from every one.
+fn check_level<M: Pyramid>(moving: &M, side_m: f64) -> Result<usize, IcpError> {
+    for level in (1..moving.num_levels()).rev() {
+        let gt = moving
+            .open_level(level)
+            .map_err(IcpError::Read)?
+            .geotransform();
+        if side_m / gt.pixel_m() >= MIN_SIDE_PX {
+            return Ok(level);
+        }
+    }
+    Ok(0)
+}
+
 /// The second height of the overlap at `result`'s transform, if any.
 fn find<R: Pyramid, M: Pyramid>(
     reference: &R,
@@ -71,12 +89,14 @@ fn find<R: Pyramid, M: Pyramid>(
         return Ok(None);
     };
     let box_m = [overlap.min_x, overlap.min_y, overlap.max_x, overlap.max_y];
-    let mut mov = moving.open_level(0).map_err(IcpError::Read)?;
+    let level = check_level(moving, overlap.width().min(overlap.height()))?;
+    let mut mov = moving.open_level(level).map_err(IcpError::Read)?;
+    let pixel_m = pixel_m.max(mov.geotransform().pixel_m());
     let samples = sample_box(&mut mov, &box_m, SAMPLES);
     if let Some(e) = mov.take_error() {
         return Err(IcpError::Read(e));
     }
-    let mut refg = reference.open_level(0).map_err(IcpError::Read)?;
+    let mut refg = reference.open_level(level).map_err(IcpError::Read)?;
     let dh: Vec<f64> = (samples.iter())
         .map(|s| {
             let p = result
