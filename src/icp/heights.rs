@@ -32,8 +32,8 @@ const MIN_SIDE_PX: f64 = 64.0;
 /// The answer checked for a second height (module docs): unchanged without
 /// one, `Ambiguous` with the spread of the two heights in its covariance with
 /// one. `tau_m` is ICP's outlier threshold at full resolution, `pixel_m` the
-/// coarser DSM's full-resolution pixel. Only for converged (or held, or already ambiguous)
-/// answers with information.
+/// coarser DSM's full-resolution pixel. Only for converged (or held, or
+/// already ambiguous) answers with information.
 pub(super) fn check_heights<R: Pyramid, M: Pyramid>(
     reference: &R,
     moving: &M,
@@ -58,11 +58,16 @@ pub(super) fn check_heights<R: Pyramid, M: Pyramid>(
     Ok(result)
 }
 
-/// The coarsest level of `moving` on which an overlap `side_m` across still
-/// spans [`MIN_SIDE_PX`] pixels: a changed building is as tall there, and a
-/// large overlap is read from a few chunks, not from every one.
-fn check_level<M: Pyramid>(moving: &M, side_m: f64) -> Result<usize, IcpError> {
-    for level in (1..moving.num_levels()).rev() {
+/// The coarsest level both DSMs have on which an overlap `side_m` across
+/// still spans [`MIN_SIDE_PX`] pixels of `moving`: a changed building is as
+/// tall there, and a large overlap is read from a few chunks, not from every one.
+fn check_level<R: Pyramid, M: Pyramid>(
+    reference: &R,
+    moving: &M,
+    side_m: f64,
+) -> Result<usize, IcpError> {
+    let levels = reference.num_levels().min(moving.num_levels());
+    for level in (1..levels).rev() {
         let gt = moving
             .open_level(level)
             .map_err(IcpError::Read)?
@@ -89,7 +94,7 @@ fn find<R: Pyramid, M: Pyramid>(
         return Ok(None);
     };
     let box_m = [overlap.min_x, overlap.min_y, overlap.max_x, overlap.max_y];
-    let level = check_level(moving, overlap.width().min(overlap.height()))?;
+    let level = check_level(reference, moving, overlap.width().min(overlap.height()))?;
     let mut mov = moving.open_level(level).map_err(IcpError::Read)?;
     let pixel_m = pixel_m.max(mov.geotransform().pixel_m());
     let samples = sample_box(&mut mov, &box_m, SAMPLES);
@@ -135,18 +140,22 @@ mod tests {
     use crate::grid::{MemGrid, MemPyramid};
     use nalgebra::{Isometry3, Translation3, Vector3, Vector6};
 
-    /// Gentle ground at 180-181.5 m; with `roof`, a flat roof at 220 m over the west 60 %.
-    fn tile(roof: bool) -> MemPyramid {
-        let gt = GeoTransform::north_up(500_000.0, 4_800_050.0, 0.5, 0.5);
-        let grid = MemGrid::from_fn(100, 100, gt, |c, r| {
-            let ground = 180.0 + 0.02 * c as f32 + 0.3 * (r as f32 / 9.0).sin();
-            if roof && c < 60 {
+    /// 150 m of gentle ground at 180-183 m; with `roof`, a flat roof at 220 m
+    /// over the west 60 %.
+    fn grid(roof: bool) -> MemGrid {
+        let gt = GeoTransform::north_up(500_000.0, 4_800_150.0, 0.5, 0.5);
+        MemGrid::from_fn(300, 300, gt, |c, r| {
+            let ground = 180.0 + 0.01 * c as f32 + 0.3 * (r as f32 / 9.0).sin();
+            if roof && c < 180 {
                 ground.max(220.0)
             } else {
                 ground
             }
-        });
-        MemPyramid::build(grid, 16)
+        })
+    }
+
+    fn tile(roof: bool) -> MemPyramid {
+        MemPyramid::build(grid(roof), 16)
     }
 
     /// A converged answer `dz` metres up with a 1 cm height sigma.
@@ -166,14 +175,14 @@ mod tests {
                     Some(0.01),
                 ],
                 degenerate: Vec::new(),
-                centroid: Vector3::new(500_025.0, 4_800_025.0, 180.0),
+                centroid: Vector3::new(500_075.0, 4_800_075.0, 180.0),
                 effective_samples: 1.0,
-                radius_m: 25.0,
+                radius_m: 75.0,
                 gridding_6x6: Matrix6::zeros(),
             }),
             ..IcpResult::converged_at(
                 Isometry3::from_parts(Translation3::new(0.0, 0.0, dz), Default::default()),
-                [500_025.0, 4_800_025.0, 180.0],
+                [500_075.0, 4_800_075.0, 180.0],
             )
         }
     }
@@ -196,6 +205,13 @@ mod tests {
         let right = check_heights(&reference, &moving, answer(0.0), 10.0, 0.5).unwrap();
         assert_eq!(right.status, IcpStatus::Ambiguous);
         assert!((right.second_height.unwrap().gap_m + 39.0).abs() < 1.5);
+
+        // a reference with one level only: the check stays on the levels both have
+        let flat = MemPyramid::build(grid(false), 1000);
+        assert_eq!(flat.num_levels(), 1);
+        let one = check_heights(&flat, &moving, answer(-40.0), 10.0, 0.5).unwrap();
+        let gap = one.second_height.expect("the ground, on level 0").gap_m;
+        assert!((gap - 39.0).abs() < 1.5, "{gap}");
 
         let plain = check_heights(&reference, &tile(false), answer(0.0), 10.0, 0.5).unwrap();
         assert_eq!(plain.status, IcpStatus::Converged);
