@@ -103,37 +103,17 @@ fn differs(best: &IcpResult, other: &IcpResult, pixel_m: f64) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::fit::FitInformation;
     use nalgebra::{Isometry3, Translation3, Vector6};
 
     /// A converged result `dx` metres east of the identity with a 5 cm, 0.01
     /// degree covariance (information to match) at the origin.
     fn at(dx: f64) -> IcpResult {
-        let diagonal = Vector6::new(0.05f64, 0.05, 0.01, 1.7e-4, 1.7e-4, 1.7e-4).map(|s| s * s);
-        let covariance = Matrix6::from_diagonal(&diagonal);
-        IcpResult {
-            information: Some(FitInformation {
-                info_6x6: Matrix6::from_diagonal(&diagonal.map(|v| 1.0 / v)),
-                covariance_6x6: covariance,
-                sigma: [
-                    Some(0.05),
-                    Some(0.05),
-                    Some(0.01),
-                    Some(0.01),
-                    Some(0.01),
-                    Some(0.01),
-                ],
-                degenerate: Vec::new(),
-                centroid: Vector3::zeros(),
-                effective_samples: 1.0,
-                radius_m: 50.0,
-                gridding_6x6: Matrix6::zeros(),
-            }),
-            ..IcpResult::converged_at(
-                Isometry3::from_parts(Translation3::new(dx, 0.0, 0.0), Default::default()),
-                [0.0; 3],
-            )
-        }
+        IcpResult::with_diagonal(
+            Isometry3::from_parts(Translation3::new(dx, 0.0, 0.0), Default::default()),
+            Vector3::zeros(),
+            Vector6::new(0.05, 0.05, 0.01, 1.7e-4, 1.7e-4, 1.7e-4),
+            50.0,
+        )
     }
 
     /// Two places 4 m apart at nearly the same cost: the pair is ambiguous and

@@ -135,7 +135,6 @@ fn find<R: Pyramid, M: Pyramid>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::fit::FitInformation;
     use crate::geo::GeoTransform;
     use crate::grid::{MemGrid, MemPyramid};
     use nalgebra::{Isometry3, Translation3, Vector3, Vector6};
@@ -160,31 +159,12 @@ mod tests {
 
     /// A converged answer `dz` metres up with a 1 cm height sigma.
     fn answer(dz: f64) -> IcpResult {
-        let diagonal = Vector6::new(0.05f64, 0.05, 0.01, 1e-4, 1e-4, 1e-4).map(|s| s * s);
-        let covariance = Matrix6::from_diagonal(&diagonal);
-        IcpResult {
-            information: Some(FitInformation {
-                info_6x6: Matrix6::from_diagonal(&diagonal.map(|v| 1.0 / v)),
-                covariance_6x6: covariance,
-                sigma: [
-                    Some(0.05),
-                    Some(0.05),
-                    Some(0.01),
-                    Some(0.01),
-                    Some(0.01),
-                    Some(0.01),
-                ],
-                degenerate: Vec::new(),
-                centroid: Vector3::new(500_075.0, 4_800_075.0, 180.0),
-                effective_samples: 1.0,
-                radius_m: 75.0,
-                gridding_6x6: Matrix6::zeros(),
-            }),
-            ..IcpResult::converged_at(
-                Isometry3::from_parts(Translation3::new(0.0, 0.0, dz), Default::default()),
-                [500_075.0, 4_800_075.0, 180.0],
-            )
-        }
+        IcpResult::with_diagonal(
+            Isometry3::from_parts(Translation3::new(0.0, 0.0, dz), Default::default()),
+            Vector3::new(500_075.0, 4_800_075.0, 180.0),
+            Vector6::new(0.05, 0.05, 0.01, 1e-4, 1e-4, 1e-4),
+            75.0,
+        )
     }
 
     /// The roof matched to the ground (40 m down) leaves the ground under the

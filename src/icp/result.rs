@@ -205,6 +205,33 @@ impl IcpResult {
         }
     }
 
+    /// [`IcpResult::converged_at`] with a diagonal covariance: standard errors
+    /// `sigmas` (x, y, z m; roll, pitch, yaw rad) at `centroid`, information to
+    /// match (tests build on it).
+    #[cfg(test)]
+    pub(crate) fn with_diagonal(
+        t_ref_moving: Isometry3<f64>,
+        centroid: nalgebra::Vector3<f64>,
+        sigmas: nalgebra::Vector6<f64>,
+        radius_m: f64,
+    ) -> Self {
+        use nalgebra::Matrix6;
+        let variance = sigmas.map(|s| s * s);
+        IcpResult {
+            information: Some(FitInformation {
+                info_6x6: Matrix6::from_diagonal(&variance.map(|v| 1.0 / v)),
+                covariance_6x6: Matrix6::from_diagonal(&variance),
+                sigma: std::array::from_fn(|k| Some(sigmas[k])),
+                degenerate: Vec::new(),
+                centroid,
+                effective_samples: 1.0,
+                radius_m,
+                gridding_6x6: Matrix6::zeros(),
+            }),
+            ..IcpResult::converged_at(t_ref_moving, centroid.into())
+        }
+    }
+
     /// True when the transform is measured in every direction and can be used
     /// at full weight: `Converged` only. (Before the degeneracy-aware ICP,
     /// `MaxIterations` counted too; it no longer does.)
