@@ -6,7 +6,10 @@
 //! pairs this store does not have, or holds a matrix that is not rigid
 //! (error naming the journal and the line). Pairs are written and read as
 //! [`PairOutcome`]s; [`record`] converts them to and from the file's lines.
-//! [`lock`] keeps a second `align` off the same output.
+//! [`lock`] keeps a second `align` off the same output. A journal is started
+//! (or rewritten on resume) under a temporary name and renamed into place:
+//! a full disk or a kill then leaves the previous journal whole, never an
+//! empty or truncated one.
 
 pub mod lock;
 pub mod record;
@@ -15,7 +18,7 @@ pub use lock::OutputLock;
 pub use record::{DsmIds, EdgeRecord};
 
 use std::collections::HashMap;
-use std::fs::File;
+use std::fs::{File, OpenOptions};
 use std::io::{BufRead, BufReader, BufWriter, Write};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -81,27 +84,44 @@ impl Journal {
         output.with_file_name(name)
     }
 
-    /// Starts a fresh journal (truncating an old one) for the DSMs `ids`.
+    /// Starts a fresh journal (replacing an old one) for the DSMs `ids`.
     pub fn create(path: &Path, settings: &str, ids: DsmIds) -> Result<Journal, JournalError> {
+        Self::start(path, settings, ids, "")
+    }
+
+    /// The header and then `records` (whole lines) written under a temporary
+    /// name and renamed over `path` ([`crate::atomic`]), then opened for
+    /// appending: until the rename, a reader (or the next run) sees the old
+    /// journal.
+    fn start(
+        path: &Path,
+        settings: &str,
+        ids: DsmIds,
+        records: &str,
+    ) -> Result<Journal, JournalError> {
         let io = |source| JournalError::Io {
             path: path.display().to_string(),
             source,
-        };
-        let file = File::create(path).map_err(io)?;
-        let mut journal = Journal {
-            path: path.to_path_buf(),
-            ids,
-            writer: BufWriter::new(file),
-            pending: 0,
-            last_flush: Instant::now(),
         };
         let header = Header {
             dsmstream_journal: 1,
             settings: settings.to_string(),
         };
-        journal.write_line(&serde_json::to_string(&header).expect("header serialises"))?;
-        journal.flush()?;
-        Ok(journal)
+        let header = serde_json::to_string(&header).expect("header serialises");
+        crate::atomic::write_atomically(path, |out| {
+            out.write_all(header.as_bytes())?;
+            out.write_all(b"\n")?;
+            out.write_all(records.as_bytes())
+        })
+        .map_err(io)?;
+        let file = OpenOptions::new().append(true).open(path).map_err(io)?;
+        Ok(Journal {
+            path: path.to_path_buf(),
+            ids,
+            writer: BufWriter::new(file),
+            pending: 0,
+            last_flush: Instant::now(),
+        })
     }
 
     /// Reopens a journal for appending, returning the pairs already in it,
@@ -119,10 +139,7 @@ impl Journal {
         };
         let outcomes = checked_outcomes(path, &records, &ids, planned, min_overlap)?;
         // Rewrite header + good records so a torn line never sits mid-file.
-        let mut journal = Journal::create(path, settings, ids)?;
-        journal.write_raw(&text)?;
-        journal.flush()?;
-        Ok((journal, outcomes))
+        Ok((Journal::start(path, settings, ids, &text)?, outcomes))
     }
 
     /// The pairs of a journal written with `settings`, checked as by
@@ -150,13 +167,6 @@ impl Journal {
             self.flush()?;
         }
         Ok(())
-    }
-
-    fn write_raw(&mut self, text: &str) -> Result<(), JournalError> {
-        let path = self.path.display().to_string();
-        self.writer
-            .write_all(text.as_bytes())
-            .map_err(|source| JournalError::Io { path, source })
     }
 
     fn write_line(&mut self, line: &str) -> Result<(), JournalError> {

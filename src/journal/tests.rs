@@ -109,6 +109,34 @@ fn resume_returns_records_and_ignores_a_torn_line() {
 }
 
 #[test]
+fn a_resume_that_cannot_rewrite_the_journal_leaves_it_whole() {
+    // The rewrite goes through a temporary name; here it cannot be created (a
+    // directory sits there), as on a full disk: the resume fails, naming the
+    // journal, and the pairs already journaled are all still there.
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("poses.json.journal");
+    let mut j = Journal::create(&path, "s1", ids()).unwrap();
+    for i in 0..3 {
+        j.append(&outcome(i)).unwrap();
+    }
+    j.flush().unwrap();
+    drop(j);
+    let before = std::fs::read(&path).unwrap();
+    let blocker = crate::atomic::temp_path(&path);
+    std::fs::create_dir(&blocker).unwrap();
+    let err = resume(&path, "s1").err().expect("cannot rewrite");
+    assert!(matches!(err, JournalError::Io { .. }), "{err}");
+    assert!(err.to_string().starts_with(&path.display().to_string()));
+    assert_eq!(std::fs::read(&path).unwrap(), before);
+    // nor can a fresh start empty it
+    assert!(Journal::create(&path, "s2", ids()).is_err());
+    assert_eq!(std::fs::read(&path).unwrap(), before);
+    std::fs::remove_dir(&blocker).unwrap();
+    let (_, records) = resume(&path, "s1").unwrap();
+    assert_eq!(records.len(), 3);
+}
+
+#[test]
 fn a_pair_without_edge_survives_resume() {
     // Its rmse is NaN, written as null: reading it must not stop the resume
     // there (every later pair would be redone).
