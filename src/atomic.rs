@@ -3,7 +3,8 @@
 //! temporary name in the same folder, are synced, then renamed over the target.
 //! On failure the temporary file is removed and the target is left as it was.
 //! A killed process cannot remove its temporaries: [`remove_stale_siblings`]
-//! lets the next run delete those of dead processes.
+//! and [`remove_stale_temporaries`] let the next run delete those of dead
+//! processes.
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
@@ -36,6 +37,39 @@ pub fn write_atomically(
         let _ = std::fs::remove_file(&temp);
     }
     result
+}
+
+/// Delete the temporaries [`write_atomically`] left next to `path` in
+/// processes that were killed mid-write (`.<name>.<pid>.tmp` of dead
+/// processes). For outputs a run rewrites under its own lock (the journal,
+/// poses.json), called before writing them. Returns how many were removed.
+pub fn remove_stale_temporaries(path: &Path) -> usize {
+    let (Some(dir), Some(name)) = (path.parent(), path.file_name()) else {
+        return 0;
+    };
+    let dir = if dir.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        dir
+    };
+    let prefix = format!(".{}.", name.to_string_lossy());
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return 0;
+    };
+    let mut removed = 0;
+    for entry in entries.filter_map(Result::ok) {
+        let file = entry.file_name().to_string_lossy().into_owned();
+        let pid = file
+            .strip_prefix(&prefix)
+            .and_then(|rest| rest.strip_suffix(".tmp"))
+            .and_then(|pid| pid.parse::<u32>().ok());
+        if pid.is_some_and(|pid| !process_alive(pid)) && std::fs::remove_file(entry.path()).is_ok()
+        {
+            tracing::info!(path = %entry.path().display(), "stale temporary removed");
+            removed += 1;
+        }
+    }
+    removed
 }
 
 /// Writes `bytes` as the whole of `path`, atomically.
@@ -121,6 +155,27 @@ mod tests {
         let mut want = names[2..].to_vec();
         want.sort();
         assert_eq!(left, want);
+    }
+
+    #[test]
+    fn temporaries_of_killed_writers_are_removed() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("p.json.journal");
+        let mine = temp_path(&out);
+        let names = [
+            ".p.json.journal.0.tmp", // pid 0: never a live process
+            ".p.json.journal.x.tmp", // not a pid: kept
+            ".p.json.0.tmp",         // another output: kept
+            "p.json.journal",
+        ];
+        for n in names {
+            std::fs::write(dir.path().join(n), b"x").unwrap();
+        }
+        std::fs::write(&mine, b"x").unwrap(); // this process is alive: kept
+        assert_eq!(remove_stale_temporaries(&out), 1);
+        assert!(!dir.path().join(names[0]).exists());
+        assert!(names[1..].iter().all(|n| dir.path().join(n).exists()));
+        assert!(mine.exists());
     }
 
     #[test]

@@ -108,6 +108,7 @@ impl Journal {
             settings: settings.to_string(),
         };
         let header = serde_json::to_string(&header).expect("header serialises");
+        crate::atomic::remove_stale_temporaries(path);
         crate::atomic::write_atomically(path, |out| {
             out.write_all(header.as_bytes())?;
             out.write_all(b"\n")?;

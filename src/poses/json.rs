@@ -136,12 +136,14 @@ impl PosesFile {
         Ok(())
     }
 
-    /// Validates, then writes atomically: a temporary file in the same folder, renamed.
+    /// Validates, then writes atomically: a temporary file in the same folder,
+    /// renamed (the temporaries of killed runs go first).
     pub fn write(&self, path: &Path) -> Result<(), PosesError> {
         self.validate().map_err(|message| PosesError::Invalid {
             path: path.to_path_buf(),
             message,
         })?;
+        crate::atomic::remove_stale_temporaries(path);
         crate::atomic::write_atomically(path, |out| self.write_json(out)).map_err(|source| {
             PosesError::Io {
                 path: path.to_path_buf(),
