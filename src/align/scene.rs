@@ -4,12 +4,13 @@
 //! standard errors; the paper's are used when one has none) is decided here,
 //! once, and carried to the report as [`WeightsUsed`].
 
-use nalgebra::{Matrix3, Matrix4, Vector3};
+use nalgebra::{Isometry3, Matrix3, Matrix4, Vector3};
 
 use super::{AlignConfig, AlignError};
 use crate::averaging::EdgeInformation;
 use crate::fit::Model;
 use crate::graph::{information_weights, paper_weights, Edge, EdgeSigma, PoseGraph, Weighting};
+use crate::icp::IcpConfig;
 use crate::pipeline::{IcpFit, PairOutcome, PairTask};
 use crate::poses::rigid::to_local;
 use crate::store::Store;
@@ -52,7 +53,7 @@ pub fn build_graph(
     for (k, outcome) in outcomes.iter().enumerate() {
         if let PairOutcome::Registered { pair, overlap, fit } = outcome {
             let e = edge(store, *pair, *overlap, fit, &origin_world);
-            information.push(edge_information(fit, &e, config.pipeline.icp.model));
+            information.push(edge_information(fit, &e, &config.pipeline.icp));
             graph.edges.push(e);
             outcome_of_edge.push(k);
         }
@@ -124,8 +125,9 @@ fn no_edge_error(store: &Store, outcomes: &[PairOutcome], min_overlap: f64) -> A
 }
 
 /// What the edge of `fit` knows: the fit's covariance blocks when it reported
-/// them, else diagonal information from its standard errors (journals of older
-/// versions); None when it has neither. Not converged (still moving at the last
+/// them (with the part its rotation prior gave marked: the poses' sigmas
+/// count the prior once per DSM), else diagonal information from its standard
+/// errors (journals of older versions); None when it has neither. Not converged (still moving at the last
 /// iteration): unreliable, never at full weight. The local frame differs from
 /// the world frame by a shift only, so the blocks keep their axes; the
 /// translation block is about the fit's centroid, which [`edge`] made the edge's
@@ -135,13 +137,21 @@ fn no_edge_error(store: &Store, outcomes: &[PairOutcome], min_overlap: f64) -> A
 /// model holds it at identity, so the edge says so with the stiffness of
 /// [`HELD_ROTATION_SIGMA_RAD`] (a zero covariance would read as "knows
 /// nothing" and leave the rotations free to drift).
-fn edge_information(fit: &IcpFit, edge: &Edge, model: Model) -> Option<EdgeInformation> {
+fn edge_information(fit: &IcpFit, edge: &Edge, icp: &IcpConfig) -> Option<EdgeInformation> {
     let reliable = fit.reliable();
     let mut info = match &fit.information {
-        Some(p) => EdgeInformation::from_covariance(&p.covariance_6x6(), reliable),
+        Some(p) => {
+            // the prior the pair's fit was given, if any (rigid, finite)
+            let at = Isometry3::identity();
+            let prior = icp
+                .rotation_prior(&at, &at)
+                .map_or(f64::INFINITY, |p| p.sigma_rad);
+            EdgeInformation::from_covariance(&p.covariance_6x6(), reliable)
+                .with_rotation_prior(prior)
+        }
         None => EdgeInformation::from_sigma(edge.sigma.as_ref()?, reliable),
     };
-    if model == Model::Translation {
+    if icp.model == Model::Translation {
         info.rotation = Matrix3::identity() / HELD_ROTATION_SIGMA_RAD.powi(2);
     }
     info.is_valid().then_some(info)
@@ -245,6 +255,7 @@ mod tests {
 
     #[test]
     fn edge_information_follows_the_fit_and_its_status() {
+        let rigid = IcpConfig::default();
         let edge = Edge {
             sigma: Some(EdgeSigma::new(
                 Vector3::new(1e-4, 2e-4, 4e-4),
@@ -253,7 +264,7 @@ mod tests {
             ..Edge::new(0, 1, Matrix4::identity(), 0.5, 0.1)
         };
         // without a covariance: 1 / sigma^2 on the diagonal
-        let info = edge_information(&fit(IcpStatus::Converged, None), &edge, Model::Rigid).unwrap();
+        let info = edge_information(&fit(IcpStatus::Converged, None), &edge, &rigid).unwrap();
         assert!(info.reliable);
         assert!((info.translation[(1, 1)] - 25.0).abs() < 1e-3);
         assert!((info.rotation[(2, 2)] - 1.0 / 16e-8).abs() < 1.0);
@@ -269,16 +280,22 @@ mod tests {
             gridding: None,
         };
         let info =
-            edge_information(&fit(IcpStatus::MaxIterations, Some(p)), &edge, Model::Rigid).unwrap();
+            edge_information(&fit(IcpStatus::MaxIterations, Some(p)), &edge, &rigid).unwrap();
         assert!(!info.reliable, "not converged: never at full weight");
         assert_eq!(info.translation[(0, 0)], 0.0);
         assert!((info.translation[(1, 1)] - 100.0).abs() < 1e-9);
         assert_eq!(info.rotation[(2, 2)], 0.0);
+        // the pair's fit was held by the default rotation prior: its part of
+        // roll is marked (the poses' sigmas count it once per DSM); the held
+        // yaw has none
+        let prior = rigid.rotation_prior_deg.to_radians().powi(-2);
+        assert!((info.prior_rotation[(0, 0)] / prior - 1.0).abs() < 1e-9);
+        assert_eq!(info.prior_rotation[(2, 2)], 0.0);
         // neither: no information (the scene then falls back)
         let bare = Edge {
             sigma: None,
             ..edge
         };
-        assert!(edge_information(&fit(IcpStatus::Converged, None), &bare, Model::Rigid).is_none());
+        assert!(edge_information(&fit(IcpStatus::Converged, None), &bare, &rigid).is_none());
     }
 }

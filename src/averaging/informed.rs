@@ -16,9 +16,12 @@
 //!    max(`outlier_sigma`, k x median) (all at once; bridges down-weighted
 //!    instead of dropped), readmitting dropped edges that fit again or that no
 //!    kept edge opposes ([`reseed::unopposed`]), the rest at full weight;
-//! 4. per-node standard errors ([`super::covariance`]) times the a-posteriori
-//!    standard deviation of unit weight when it exceeds one (the edges disagree
-//!    more than their own sigmas say: [`variance_factor`]), and status.
+//! 4. per-node standard errors ([`super::covariance`]) from what the edges'
+//!    data say (each pair's rotation prior taken off: [`EdgeInformation::prior_rotation`])
+//!    times the a-posteriori standard deviation of unit weight when it exceeds
+//!    one (the edges disagree more than their own sigmas say:
+//!    [`variance_factor`]), each rotation then held once by the DSMs' rotation
+//!    prior ([`hold_once`]), and status.
 //!
 //! Frames: both blocks are about the axes of DSM i's frame (the pair's reference),
 //! the translation at the edge's centre (`Edge::centre_j`); DSM rotations are tiny,
@@ -227,7 +230,22 @@ pub fn average_informed(
         super::fix_gauge(&mut poses, members, None);
     }
     let rotations: Vec<Matrix3<f64>> = poses.iter().map(rotation).collect();
-    let weighted: Vec<Matrix6<f64>> = omegas.iter().zip(&active).map(|(o, &a)| o * a).collect();
+    // The covariance from what the edges' data say; each DSM is then held by
+    // the rotation prior once ([`hold_once`]), where the pairs' fits held
+    // every edge with it (k edges: k times the prior on a DSM's rotation).
+    let data_only: Vec<EdgeInformation> = information
+        .iter()
+        .map(EdgeInformation::without_prior)
+        .collect();
+    let at = InformedOptions {
+        unreliable_factor: unreliable,
+        ..*options
+    };
+    let weighted: Vec<Matrix6<f64>> = effective_information(&data_only, &at)
+        .iter()
+        .zip(&active)
+        .map(|(o, &a)| o * a)
+        .collect();
     let translations: Vec<Vector3<f64>> = poses.iter().map(translation).collect();
     let mut sigma = if options.joint_steps > 0 && graph.n <= JOINT_COVARIANCE_MAX_NODES {
         joint_node_sigmas(
@@ -252,6 +270,7 @@ pub fn average_informed(
     for s in &mut sigma {
         s.shift_m.iter_mut().for_each(|v| *v *= scale);
         s.rotation_deg.iter_mut().for_each(|v| *v *= scale);
+        hold_once(s, options.rotation_prior_rad);
     }
     let status = node_status(graph, information, &active, &sigma, options);
     result.edge_residuals = super::edge_residuals(graph, &poses);
@@ -266,6 +285,22 @@ pub fn average_informed(
         variance_factor: factor,
         unreliable_weight: unreliable,
     })
+}
+
+/// A DSM's rotation sigmas from its edges' data combined, axis by axis, with
+/// the rotation prior of one-sigma `prior_rad` that the solve holds each DSM
+/// with (1 / v = 1 / v_data + 1 / sigma^2; an approximation where the axes
+/// correlate). An infinite prior changes nothing.
+fn hold_once(sigma: &mut NodeSigma, prior_rad: f64) {
+    if !(prior_rad > 0.0 && prior_rad.is_finite()) {
+        return;
+    }
+    let prior_deg = prior_rad.to_degrees();
+    for s in &mut sigma.rotation_deg {
+        if s.is_finite() && *s > 0.0 {
+            *s = 1.0 / (s.powi(-2) + prior_deg.powi(-2)).sqrt();
+        }
+    }
 }
 
 /// `rounds` refinements with Cauchy weights (scale `outlier_sigma`) of the
@@ -426,6 +461,8 @@ mod edge;
 #[cfg(test)]
 use edge::block_inverse;
 pub use edge::EdgeInformation;
+#[cfg(test)]
+use edge::MOST_PRIOR_SHARE;
 mod refine;
 mod reseed;
 #[cfg(test)]

@@ -18,7 +18,15 @@ pub struct EdgeInformation {
     /// False for edges that did not converge or are ambiguous: they enter at
     /// `unreliable_factor` of their information and never count as constraining.
     pub reliable: bool,
+    /// The part of `rotation` the pair's fit took from its rotation prior (zero
+    /// without one). The poses' covariance counts the prior once per DSM, not
+    /// once per edge ([`super::average_informed`]).
+    pub prior_rotation: Matrix3<f64>,
 }
+
+/// Along a rotation direction, the prior's part is at most this fraction of
+/// the edge's information there ([`EdgeInformation::with_rotation_prior`]).
+pub(super) const MOST_PRIOR_SHARE: f64 = 0.95;
 
 impl EdgeInformation {
     /// The marginal rotation and translation information of a fit: the inverses of
@@ -55,6 +63,32 @@ impl EdgeInformation {
             translation: positive_part(&(tt - tr * block_inverse(&rr) * tr.transpose())),
             rotation: positive_part(&(rr - tr.transpose() * block_inverse(&tt) * tr)),
             reliable,
+            prior_rotation: Matrix3::zeros(),
+        }
+    }
+
+    /// The same, for a fit given a rotation prior of one-sigma `sigma_rad` per
+    /// axis: the fit's rotation information is the data's plus 1 / sigma^2 per
+    /// axis (the generalised least squares of [`crate::fit`], which the
+    /// marginal keeps), so per eigen-direction the prior's part is 1 /
+    /// sigma^2, or less where the checks' gaps left the edge less than that
+    /// (at most [`MOST_PRIOR_SHARE`] of it: a held direction stays empty).
+    pub fn with_rotation_prior(mut self, sigma_rad: f64) -> Self {
+        if sigma_rad > 0.0 && sigma_rad.is_finite() {
+            let prior = sigma_rad.powi(-2);
+            self.prior_rotation = spectral(&self.rotation, |l, _| {
+                prior.min(MOST_PRIOR_SHARE * l.max(0.0))
+            });
+        }
+        self
+    }
+
+    /// What the edge's data say: `rotation` without the prior's part.
+    pub fn without_prior(&self) -> Self {
+        EdgeInformation {
+            rotation: positive_part(&(self.rotation - self.prior_rotation)),
+            prior_rotation: Matrix3::zeros(),
+            ..*self
         }
     }
 
@@ -66,6 +100,7 @@ impl EdgeInformation {
             rotation: diag(sigma.rotation_rad()),
             translation: diag(sigma.translation_m()),
             reliable,
+            prior_rotation: Matrix3::zeros(),
         }
     }
 
@@ -77,7 +112,7 @@ impl EdgeInformation {
                 && symmetric(m)
                 && m.symmetric_eigen().eigenvalues.min() >= -1e-9 * m.amax()
         };
-        ok(&self.rotation) && ok(&self.translation)
+        ok(&self.rotation) && ok(&self.translation) && ok(&self.prior_rotation)
     }
 }
 
