@@ -44,32 +44,14 @@ pub fn write_atomically(
 /// processes). For outputs a run rewrites under its own lock (the journal,
 /// poses.json), called before writing them. Returns how many were removed.
 pub fn remove_stale_temporaries(path: &Path) -> usize {
-    let (Some(dir), Some(name)) = (path.parent(), path.file_name()) else {
-        return 0;
-    };
-    let dir = if dir.as_os_str().is_empty() {
-        Path::new(".")
-    } else {
-        dir
-    };
-    let prefix = format!(".{}.", name.to_string_lossy());
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return 0;
-    };
-    let mut removed = 0;
-    for entry in entries.filter_map(Result::ok) {
-        let file = entry.file_name().to_string_lossy().into_owned();
-        let pid = file
-            .strip_prefix(&prefix)
-            .and_then(|rest| rest.strip_suffix(".tmp"))
-            .and_then(|pid| pid.parse::<u32>().ok());
-        if pid.is_some_and(|pid| !process_alive(pid)) && std::fs::remove_file(entry.path()).is_ok()
-        {
-            tracing::info!(path = %entry.path().display(), "stale temporary removed");
-            removed += 1;
-        }
-    }
-    removed
+    remove_dead(path, |file, name| {
+        file.strip_prefix('.')?
+            .strip_prefix(name)?
+            .strip_prefix('.')?
+            .strip_suffix(".tmp")?
+            .parse()
+            .ok()
+    })
 }
 
 /// Writes `bytes` as the whole of `path`, atomically.
@@ -91,6 +73,21 @@ pub fn process_alive(pid: u32) -> bool {
 /// COG writer's `.spill-` and `.tmp-`). Returns how many were removed;
 /// errors are ignored (a temporary that cannot be removed is harmless).
 pub fn remove_stale_siblings(path: &Path, tags: &[&str]) -> usize {
+    remove_dead(path, |file, name| {
+        let rest = file.strip_prefix(name)?;
+        let tail = tags.iter().find_map(|t| rest.strip_prefix(t))?;
+        let pid_text = tail.split('-').next().unwrap_or("");
+        let pid = pid_text.parse::<u32>().ok()?;
+        let tail_ok = tail[pid_text.len()..]
+            .strip_prefix('-')
+            .is_none_or(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()));
+        tail_ok.then_some(pid)
+    })
+}
+
+/// Removes the files next to `path` for which `pid_of(file name, name of
+/// path)` names a process that is gone; how many were removed.
+fn remove_dead(path: &Path, pid_of: impl Fn(&str, &str) -> Option<u32>) -> usize {
     let (Some(dir), Some(name)) = (path.parent(), path.file_name()) else {
         return 0;
     };
@@ -106,20 +103,8 @@ pub fn remove_stale_siblings(path: &Path, tags: &[&str]) -> usize {
     let mut removed = 0;
     for entry in entries.filter_map(Result::ok) {
         let file = entry.file_name().to_string_lossy().into_owned();
-        let Some(rest) = file.strip_prefix(name.as_ref()) else {
-            continue;
-        };
-        let Some(tail) = tags.iter().find_map(|t| rest.strip_prefix(t)) else {
-            continue;
-        };
-        let pid_text = tail.split('-').next().unwrap_or("");
-        let Ok(pid) = pid_text.parse::<u32>() else {
-            continue;
-        };
-        let tail_ok = tail[pid_text.len()..]
-            .strip_prefix('-')
-            .is_none_or(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()));
-        if tail_ok && !process_alive(pid) && std::fs::remove_file(entry.path()).is_ok() {
+        let dead = pid_of(&file, &name).is_some_and(|pid| !process_alive(pid));
+        if dead && std::fs::remove_file(entry.path()).is_ok() {
             tracing::info!(path = %entry.path().display(), "stale temporary removed");
             removed += 1;
         }
