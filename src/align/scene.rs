@@ -127,8 +127,9 @@ fn no_edge_error(store: &Store, outcomes: &[PairOutcome], min_overlap: f64) -> A
 /// What the edge of `fit` knows: the fit's covariance blocks when it reported
 /// them (with the part its rotation prior gave marked: the poses' sigmas
 /// count the prior once per DSM), else diagonal information from its standard
-/// errors (journals of older versions); None when it has neither. Not converged (still moving at the last
-/// iteration): unreliable, never at full weight. The local frame differs from
+/// errors (journals of older versions); None when it has neither. Not
+/// converged (still moving at the last iteration): unreliable, never at full
+/// weight. The local frame differs from
 /// the world frame by a shift only, so the blocks keep their axes; the
 /// translation block is about the fit's centroid, which [`edge`] made the edge's
 /// measurement point.
