@@ -256,9 +256,17 @@ fn table(reference: &str, moving: &str, r: &IcpResult, pose: &CentredPose, secon
         );
     }
     if let Some(h) = &r.second_height {
+        let place = if h.slide_m > 0.0 {
+            format!(
+                " where the DSM was georeferenced ({:.1} m from the answer, which slid onto one height; the slide is in the sigmas too)",
+                h.slide_m
+            )
+        } else {
+            String::new()
+        };
         let _ = writeln!(
             t,
-            "heights     {:.0} % of the overlap is {:+.3} m from the answer's height: the pair cannot tell which is ground, the gap is in the sigmas",
+            "heights     {:.0} % of the overlap is {:+.3} m from the answer's height{place}: the pair cannot tell which is ground, the gap is in the sigmas",
             100.0 * h.share,
             h.gap_m
         );

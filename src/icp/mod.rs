@@ -30,7 +30,7 @@ mod robust;
 pub mod sample;
 pub mod start;
 
-use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 
 pub use config::{IcpConfig, Metric};
 pub use result::{
@@ -69,7 +69,12 @@ pub fn register<R: Pyramid, M: Pyramid>(
     let mut first_error = None;
     for start in &starts.starts {
         match from_start(reference, moving, config, &starts, start) {
-            Ok(r) => tried.push(r),
+            Ok(r) => {
+                let c = Point3::from(Vector3::from(r.0.centre_m));
+                let ended = r.0.t_ref_moving.transform_point(&c) - c;
+                tracing::debug!(start = ?start.shift_m, ?ended, cost = r.1, status = ?r.0.status, "start result");
+                tried.push(r)
+            }
             Err(e) => {
                 first_error.get_or_insert(e);
             }

@@ -148,13 +148,17 @@ impl RestartCheck {
     }
 }
 
-/// A second height the overlap agrees on, beyond the outlier threshold.
+/// A second height the overlap agrees on, one the fit treated as outliers.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct SecondHeight {
     /// The second height minus the answer's, metres (reference minus moving).
     pub gap_m: f64,
     /// The share of the overlap's height differences at the second height.
     pub share: f64,
+    /// How far the answer slid horizontally from where the overlap holds the
+    /// second height, metres (0: at the answer; else at the georeferenced
+    /// position, and the slide joins the sigmas too).
+    pub slide_m: f64,
 }
 
 /// The forward answer against the inverse of the backward one, at the fit's centroid.

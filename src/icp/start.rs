@@ -115,7 +115,7 @@ pub fn find_starts<R: Pyramid, M: Pyramid>(
             cost_m: best.cost_m,
         });
     }
-    tracing::debug!(shift = ?found.shift_m, ambiguity = found.ambiguity, level = found.level, "initial search");
+    tracing::debug!(shift = ?found.shift_m, ambiguity = found.ambiguity, level = found.level, candidates = ?found.candidates, "initial search");
     Ok(Starts {
         starts,
         ambiguity: Some(found.ambiguity),

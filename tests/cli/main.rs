@@ -18,6 +18,7 @@ mod grids;
 mod icpwire;
 mod ingest;
 mod ingest4;
+mod narrow;
 mod outputs;
 mod pair_real;
 mod pair_recovery;
