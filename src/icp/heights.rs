@@ -37,8 +37,13 @@ use crate::grid::{Grid, Pyramid};
 pub const SHARE: f64 = 0.2;
 /// A second height lies farther than this many NMADs of the answer's own
 /// height differences from it (Tukey's cut-off, 4.685 sigma, and the two
-/// clusters' half-widths), and at least two pixels.
+/// clusters' half-widths), two pixels and [`MIN_SEPARATION_M`].
 pub const SEPARATION_NMAD: f64 = 6.0;
+/// A second height lies at least this far from the answer's: on coarse check
+/// levels the noise averages out and 6 NMAD can be decimetres, where a fifth
+/// of a 1 km overlap a metre higher is change (a field, a surface), not the
+/// ground (the 4 x 4 grid of 1 km tiles flagged a right pair 1 m apart).
+pub const MIN_SEPARATION_M: f64 = 2.0;
 /// Moving samples of the overlap the check looks at.
 const SAMPLES: usize = 4096;
 /// The check's level keeps at least this many pixels across the overlap.
@@ -179,7 +184,10 @@ fn find<R: Pyramid, M: Pyramid>(
         nmad_m = 1.4826 * median_in_place(&mut near);
     }
     let width_m = (3.0 * nmad_m).max(level_pixel_m);
-    let separation_m = (SEPARATION_NMAD * nmad_m).max(2.0 * pixel_m).min(tau_m);
+    let separation_m = (SEPARATION_NMAD * nmad_m)
+        .max(2.0 * pixel_m)
+        .max(MIN_SEPARATION_M)
+        .min(tau_m);
     let own = dh.iter().filter(|d| d.abs() <= width_m).count() as f64 / dh.len() as f64;
     Ok(
         second_height(&dh, 0.0, separation_m, width_m, SHARE).map(|(gap_m, count)| {
