@@ -2,8 +2,6 @@
 //! four tiles of the 50 x 50 grid of seed 5): where `pair` once gave wrong
 //! answers with sub-metre sigmas, it must now be right or say how unsure it is.
 
-use nalgebra::{Matrix4, Vector4};
-
 use crate::util::{bin, fixtures};
 
 /// Runs `pair` on two tiles of narrow64: the exit code, the JSON, and the
@@ -22,23 +20,7 @@ fn pair(reference: &str, moving: &str) -> (Option<i32>, serde_json::Value, [f64;
         .output()
         .unwrap();
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    let truth: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(data.join("truth.json")).unwrap()).unwrap();
-    let m = |id: &str| {
-        let tile = truth["tiles"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .find(|t| t["id"] == id);
-        let rows = &tile.unwrap()["matrix_world"];
-        Matrix4::from_fn(|r, c| rows[r][c].as_f64().unwrap())
-    };
-    // p_ref = M_ref^-1 M_moving p_moving; the shift at the fit's centre c is c - T^-1 c
-    let t_true = m(reference).try_inverse().unwrap() * m(moving);
-    let c = |k: usize| v["centre_m"][k].as_f64().unwrap();
-    let centre = Vector4::new(c(0), c(1), c(2), 1.0);
-    let true_shift = centre - t_true.try_inverse().unwrap() * centre;
-    let error = [0, 1, 2].map(|k| v["shift_m"][k].as_f64().unwrap() - true_shift[k]);
+    let error = crate::util::shift_error(&data.join("truth.json"), reference, moving, &v);
     let sigma = [0, 1, 2].map(|k| v["sigma"]["shift_m"][k].as_f64().unwrap_or(f64::INFINITY));
     (out.status.code(), v, error, sigma)
 }

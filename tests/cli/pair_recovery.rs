@@ -217,27 +217,8 @@ fn a_changed_roof_over_most_of_a_narrow_overlap_is_ambiguous_not_centimetres() {
     assert!(second["share"].as_f64().unwrap() >= 0.2, "{second}");
     assert!(second["gap_m"].as_f64().unwrap().abs() > 40.0, "{second}");
 
-    let truth: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(data.join("truth.json")).unwrap()).unwrap();
-    let m = |id: &str| {
-        let tile = truth["tiles"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .find(|t| t["id"] == id);
-        matrix(&tile.unwrap()["matrix_world"])
-    };
-    // p_ref = M_ref^-1 M_moving p_moving; the shift at the fit's centre c is c - T^-1 c
-    let t_true = m("tile_299").try_inverse().unwrap() * m("tile_349");
-    let c = &v["centre_m"];
-    let c = Vector4::new(
-        c[0].as_f64().unwrap(),
-        c[1].as_f64().unwrap(),
-        c[2].as_f64().unwrap(),
-        1.0,
-    );
-    let true_shift = c - t_true.try_inverse().unwrap() * c;
-    let error = v["shift_m"][2].as_f64().unwrap() - true_shift[2];
+    let truth = data.join("truth.json");
+    let error = crate::util::shift_error(&truth, "tile_299", "tile_349", &v)[2];
     let sigma = v["sigma"]["shift_m"][2].as_f64().unwrap();
     assert!(
         error.abs() <= 3.0 * sigma,

@@ -85,3 +85,31 @@ pub fn chain4_store(dir: &Path) -> PathBuf {
     ingest(&[fixtures().join("synth/chain4")], &store);
     store
 }
+
+/// The error of `pair --json`'s shift at its fit's centre against a dsmgen
+/// `truth.json` (estimate minus truth, metres, x y z): the true transform is
+/// M_ref^-1 M_moving, and the shift at the centre c is c - T^-1 c.
+pub fn shift_error(
+    truth_json: &Path,
+    reference: &str,
+    moving: &str,
+    pair: &serde_json::Value,
+) -> [f64; 3] {
+    use nalgebra::{Matrix4, Vector4};
+    let truth: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(truth_json).unwrap()).unwrap();
+    let m = |id: &str| {
+        let tile = truth["tiles"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|t| t["id"] == id);
+        let rows = &tile.unwrap()["matrix_world"];
+        Matrix4::from_fn(|r, c| rows[r][c].as_f64().unwrap())
+    };
+    let t_true = m(reference).try_inverse().unwrap() * m(moving);
+    let c = |k: usize| pair["centre_m"][k].as_f64().unwrap();
+    let centre = Vector4::new(c(0), c(1), c(2), 1.0);
+    let true_shift = centre - t_true.try_inverse().unwrap() * centre;
+    [0, 1, 2].map(|k| pair["shift_m"][k].as_f64().unwrap() - true_shift[k])
+}
