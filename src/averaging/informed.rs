@@ -27,11 +27,13 @@
 //! the translation at the edge's centre (`Edge::centre_j`); DSM rotations are tiny,
 //! so i's and j's axes agree to first order.
 
+use super::block::BlockEdge;
 use super::consistency::{
     active_components, mahalanobis_residuals, unreliable_weight, variance_factor,
 };
 use super::covariance::{node_sigmas, CovarianceMethod, NodeSigma};
 use super::joint::joint_node_sigmas;
+use super::reliability::outlier_variances;
 use super::{average, AveragingError, AveragingOptions, AveragingResult};
 use crate::graph::{EdgeSigma, PoseGraph};
 use crate::poses::rigid::{from_parts, rotation, translation};
@@ -265,6 +267,14 @@ pub fn average_informed(
             options.covariance,
         )
     };
+    add_outlier_variances(
+        graph,
+        &weighted,
+        &rotations,
+        &components,
+        options,
+        &mut sigma,
+    );
     let factor = variance_factor(graph, &mahalanobis, &active, &components);
     let scale = factor.unwrap_or(1.0).max(1.0).sqrt();
     for s in &mut sigma {
@@ -285,6 +295,51 @@ pub fn average_informed(
         variance_factor: factor,
         unreliable_weight: unreliable,
     })
+}
+
+/// Each node's shift variance plus what an outlier edge the graph's test
+/// could miss would add ([`super::reliability`]), from the translation blocks
+/// of the edges as weighted for the covariance; unchanged where the graph is
+/// too large for it (logged).
+fn add_outlier_variances(
+    graph: &PoseGraph,
+    weighted: &[Matrix6<f64>],
+    rotations: &[Matrix3<f64>],
+    components: &[Vec<usize>],
+    options: &InformedOptions,
+    sigma: &mut [NodeSigma],
+) {
+    let edges: Vec<BlockEdge> = graph
+        .edges
+        .iter()
+        .zip(weighted)
+        .filter(|(_, o)| o.fixed_view::<3, 3>(3, 3).amax() > 0.0)
+        .map(|(e, o)| {
+            let r_i = rotations[e.i];
+            BlockEdge {
+                i: e.i,
+                j: e.j,
+                b: Matrix3::identity(),
+                omega: r_i * o.fixed_view::<3, 3>(3, 3) * r_i.transpose(),
+                r0: Vector3::zeros(),
+            }
+        })
+        .collect();
+    let Some(extra) = outlier_variances(graph.n, &edges, components, options.outlier_sigma) else {
+        tracing::info!(
+            nodes = graph.n,
+            edges = edges.len(),
+            "pose sigmas without the undetected-outlier term (graph over its budget)"
+        );
+        return;
+    };
+    for (s, v) in sigma.iter_mut().zip(&extra) {
+        for (a, x) in s.shift_m.iter_mut().enumerate() {
+            if x.is_finite() {
+                *x = (*x * *x + v[a]).sqrt();
+            }
+        }
+    }
 }
 
 /// A DSM's rotation sigmas from its edges' data combined, axis by axis, with

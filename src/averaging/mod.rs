@@ -23,6 +23,7 @@ mod joint;
 mod laplacian;
 mod marginals;
 mod multilevel;
+mod reliability;
 mod robust;
 mod rotation;
 pub mod synthetic;
