@@ -282,6 +282,39 @@ impl<const D: usize> Factor<D> {
     /// Z_pp = L_pp^-T (L_pp^-1 - sum_{a in S_p} L_ap^T Z_ap);
     /// every Z_aq needed is on the pattern (S_p is a clique of the factor).
     pub fn inverse_diagonal(&self) -> Vec<SMatrix<f64, D, D>> {
+        let (diag, _) = self.selected_inverse();
+        let mut out = vec![SMatrix::zeros(); diag.len()];
+        for (p, &k) in self.symbolic.order.iter().enumerate() {
+            out[k] = diag[p];
+        }
+        out
+    }
+
+    /// The blocks Z_ij of H^-1 for `links` (i, j), by the same recurrence: every
+    /// link of H is on the factor's pattern (None for a pair that is not).
+    pub fn inverse_links(&self, links: &[(usize, usize)]) -> Vec<Option<SMatrix<f64, D, D>>> {
+        let (diag, z) = self.selected_inverse();
+        let s = &self.symbolic;
+        links
+            .iter()
+            .map(|&(i, j)| {
+                let (pi, pj) = (s.position[i], s.position[j]);
+                if pi == pj {
+                    return Some(diag[pi]);
+                }
+                // z[p][u] = Z_ap for a = S_p[u], a later than p
+                let (a, p) = (pi.max(pj), pi.min(pj));
+                let u = s.columns[p].binary_search(&a).ok()?;
+                let z_ap = z[p][u];
+                Some(if pi > pj { z_ap } else { z_ap.transpose() })
+            })
+            .collect()
+    }
+
+    /// The diagonal blocks of H^-1 by position and its blocks on the factor's
+    /// pattern (`z[p][u]` = Z_ap for a = S_p[u]).
+    #[allow(clippy::type_complexity)]
+    fn selected_inverse(&self) -> (Vec<SMatrix<f64, D, D>>, Vec<Vec<SMatrix<f64, D, D>>>) {
         let s = &self.symbolic;
         let n = s.order.len();
         let mut diag = vec![SMatrix::<f64, D, D>::zeros(); n];
@@ -325,11 +358,7 @@ impl<const D: usize> Factor<D> {
             diag[p] = (z_pp + z_pp.transpose()) * 0.5;
             z[p] = column;
         }
-        let mut out = vec![SMatrix::zeros(); n];
-        for (p, &k) in s.order.iter().enumerate() {
-            out[k] = diag[p];
-        }
-        out
+        (diag, z)
     }
 
     /// x = H^-1 rhs.

@@ -17,8 +17,9 @@
 //!    instead of dropped), readmitting dropped edges that fit again or that no
 //!    kept edge opposes ([`reseed::unopposed`]), the rest at full weight;
 //! 4. per-node standard errors ([`super::covariance`]) from what the edges'
-//!    data say (each pair's rotation prior taken off: [`EdgeInformation::prior_rotation`])
-//!    times the a-posteriori standard deviation of unit weight when it exceeds
+//!    data say (each pair's rotation prior taken off: [`EdgeInformation::prior_rotation`]),
+//!    the shifts' plus what an outlier edge the test could miss would add
+//!    ([`super::reliability`]), times the a-posteriori standard deviation of unit weight when it exceeds
 //!    one (the edges disagree more than their own sigmas say:
 //!    [`variance_factor`]), each rotation then held once by the DSMs' rotation
 //!    prior ([`hold_once`]), and status.
@@ -299,8 +300,8 @@ pub fn average_informed(
 
 /// Each node's shift variance plus what an outlier edge the graph's test
 /// could miss would add ([`super::reliability`]), from the translation blocks
-/// of the edges as weighted for the covariance; unchanged where the graph is
-/// too large for it (logged).
+/// of the edges as weighted for the covariance; unchanged where the graph's
+/// factor is over the direct budget (logged).
 fn add_outlier_variances(
     graph: &PoseGraph,
     weighted: &[Matrix6<f64>],
@@ -329,7 +330,7 @@ fn add_outlier_variances(
         tracing::info!(
             nodes = graph.n,
             edges = edges.len(),
-            "pose sigmas without the undetected-outlier term (graph over its budget)"
+            "pose sigmas without the undetected-outlier term (the factor is over its budget)"
         );
         return;
     };
