@@ -3,7 +3,7 @@
 //! rest by one converged pair 8.8 m off at a 0.8 m sigma and by ambiguous
 //! pairs. The poses there are metres off; their sigmas must say so.
 
-use crate::util::{assert_ok, bin, dsmgen, dsmgen_tiles, ingest};
+use crate::util::{align_and_score, grid_tiles, ingest};
 
 /// Rows 0-11, columns 0-13 of the grid (168 DSMs), aligned at the defaults:
 /// every DSM within 3 of its shift sigmas (the build before the
@@ -13,48 +13,14 @@ fn a_corner_on_weakly_checked_edges_is_as_unsure_as_it_is_wrong() {
     let temp = tempfile::tempdir().unwrap();
     let dir = temp.path();
     let tiles = dir.join("tiles");
-    let layout = [
-        "--layout",
-        "grid",
-        "--overlap",
-        "0.3",
-        "--rows",
-        "50",
-        "--cols",
-        "50",
-        "--size",
-        "128",
-        "--seed",
-        "5",
-    ];
-    dsmgen_tiles(&layout, &tiles);
+    grid_tiles(&tiles, "50", "128", "5", "centre");
     let corner: Vec<_> = (0..12)
         .flat_map(|r| (0..14).map(move |c| r * 50 + c))
         .map(|k| tiles.join(format!("tile_{k:02}.tif")))
         .collect();
     let store = dir.join("c.zarr");
     ingest(&corner, &store);
-    let poses = dir.join("p.json");
-    let run = bin()
-        .arg("align")
-        .arg(&store)
-        .arg("--out")
-        .arg(&poses)
-        .arg("-q")
-        .output()
-        .unwrap();
-    assert_ok(&run);
-    let score = dsmgen()
-        .arg("score")
-        .arg("--truth")
-        .arg(tiles.join("truth.json"))
-        .arg("--poses")
-        .arg(&poses)
-        .arg("--json")
-        .output()
-        .unwrap();
-    assert_ok(&score);
-    let v: serde_json::Value = serde_json::from_slice(&score.stdout).unwrap();
+    let v = align_and_score(&store, &tiles.join("truth.json"));
     let worst = v["per_dsm"]["worst_m"].as_f64().unwrap();
     let within = &v["per_dsm_sigma"]["shift"];
     // the corner is metres off (the test is about the sigmas, not the poses)

@@ -5,7 +5,7 @@
 //! test's comment are docs/measurements.md's ("Ambiguous pairs carry their
 //! spread; seams measured").
 
-use crate::util::{assert_ok, bin, dsmgen, dsmgen_tiles, ingest};
+use crate::util::{align_and_score, grid_tiles, ingest};
 
 /// What `dsmgen score --json` says of one default `align` of a generated grid.
 struct Scored {
@@ -28,46 +28,10 @@ fn align_grid(rows: &str, size: &str, seed: &str, render: &str) -> Scored {
     let temp = tempfile::tempdir().unwrap();
     let dir = temp.path();
     let tiles = dir.join("tiles");
-    let layout = [
-        "--layout",
-        "grid",
-        "--overlap",
-        "0.3",
-        "--rows",
-        rows,
-        "--cols",
-        rows,
-        "--size",
-        size,
-        "--seed",
-        seed,
-        "--render",
-        render,
-    ];
-    dsmgen_tiles(&layout, &tiles);
+    grid_tiles(&tiles, rows, size, seed, render);
     let store = dir.join("c.zarr");
     ingest(std::slice::from_ref(&tiles), &store);
-    let poses = dir.join("p.json");
-    let run = bin()
-        .arg("align")
-        .arg(&store)
-        .arg("--out")
-        .arg(&poses)
-        .arg("-q")
-        .output()
-        .unwrap();
-    assert_ok(&run);
-    let score = dsmgen()
-        .arg("score")
-        .arg("--truth")
-        .arg(tiles.join("truth.json"))
-        .arg("--poses")
-        .arg(&poses)
-        .arg("--json")
-        .output()
-        .unwrap();
-    assert_ok(&score);
-    let v: serde_json::Value = serde_json::from_slice(&score.stdout).unwrap();
+    let v = align_and_score(&store, &tiles.join("truth.json"));
     let f = |x: &serde_json::Value| x.as_f64().unwrap();
     let scored = Scored {
         what: String::new(),

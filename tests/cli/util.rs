@@ -70,6 +70,54 @@ pub fn dsmgen_tiles(args: &[&str], out: &Path) {
     );
 }
 
+/// `dsmgen tiles --layout grid` of `rows` x `rows` tiles of `size` px with
+/// 30 % overlaps, into `out`.
+pub fn grid_tiles(out: &Path, rows: &str, size: &str, seed: &str, render: &str) {
+    let layout = [
+        "--layout",
+        "grid",
+        "--overlap",
+        "0.3",
+        "--rows",
+        rows,
+        "--cols",
+        rows,
+        "--size",
+        size,
+        "--seed",
+        seed,
+        "--render",
+        render,
+    ];
+    dsmgen_tiles(&layout, out);
+}
+
+/// `dsmstream align <store> --out <dir>/p.json -q` at the defaults, then
+/// `dsmgen score --truth <truth> --poses p.json --json`: its document.
+pub fn align_and_score(store: &Path, truth: &Path) -> serde_json::Value {
+    let poses = store.with_file_name("p.json");
+    let run = bin()
+        .arg("align")
+        .arg(store)
+        .arg("--out")
+        .arg(&poses)
+        .arg("-q")
+        .output()
+        .unwrap();
+    assert_ok(&run);
+    let score = dsmgen()
+        .arg("score")
+        .arg("--truth")
+        .arg(truth)
+        .arg("--poses")
+        .arg(&poses)
+        .arg("--json")
+        .output()
+        .unwrap();
+    assert_ok(&score);
+    serde_json::from_slice(&score.stdout).unwrap()
+}
+
 /// `dsmstream` with `args`, its output.
 pub fn run(args: &[&dyn AsRef<std::ffi::OsStr>]) -> Output {
     let mut c = bin();
