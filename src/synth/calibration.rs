@@ -8,7 +8,7 @@
 //! the rotation vector of D (roll, pitch, yaw about the CRS axes). Axes the
 //! fit held (zero variance) have no sigma and are counted apart.
 
-use nalgebra::{Matrix4, Point3, Rotation3};
+use nalgebra::{Matrix4, Point3, Rotation3, Vector3};
 use serde::Serialize;
 
 use super::output::Truth;
@@ -35,6 +35,10 @@ pub struct EdgeError {
     /// Reported one-sigma per axis (same units); None where the fit held the axis
     /// or reported no covariance.
     pub sigma: [Option<f64>; 6],
+    /// The shift error's Mahalanobis distance in the reported shift covariance
+    /// (x, y, z jointly); None where the fit held a shift axis or reported none.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub shift_mahalanobis: Option<f64>,
 }
 
 impl EdgeError {
@@ -94,7 +98,18 @@ impl Truth {
             }
             Some(standard_error(&reported?, k))
         });
+        let shift_mahalanobis = match (&reported, sigma[..3].iter().all(Option::is_some)) {
+            (Some(c), true) => {
+                let e = Vector3::new(error[0], error[1], error[2]);
+                let block = c.fixed_view::<3, 3>(0, 0).into_owned();
+                block
+                    .cholesky()
+                    .map(|l| e.dot(&l.solve(&e)).max(0.0).sqrt())
+            }
+            _ => None,
+        };
         Some(EdgeError {
+            shift_mahalanobis,
             reference: record.reference.clone(),
             moving: record.moving.clone(),
             status: record.status,
@@ -149,6 +164,30 @@ pub fn calibration(edges: &[EdgeError]) -> Vec<AxisCalibration> {
             }
         })
         .collect()
+}
+
+/// The shift errors' Mahalanobis distances against the chi-square quantiles
+/// of 3 degrees of freedom at 1, 2 and 3 sigma's coverage (68.27, 95.45,
+/// 99.73 %): where per-axis counts pass an error across a narrow covariance,
+/// this does not.
+#[derive(Clone, Debug, Serialize)]
+pub struct ShiftCalibration {
+    pub with_covariance: usize,
+    pub within: [f64; 3],
+    pub worst: f64,
+}
+
+/// Square roots of the chi-square(3) quantiles at 68.27, 95.45 and 99.73 %.
+pub const CHI3_SIGMAS: [f64; 3] = [1.878, 2.833, 3.763];
+
+pub fn shift_calibration(edges: &[EdgeError]) -> ShiftCalibration {
+    let d: Vec<f64> = edges.iter().filter_map(|e| e.shift_mahalanobis).collect();
+    let frac = |q: f64| d.iter().filter(|&&x| x <= q).count() as f64 / d.len().max(1) as f64;
+    ShiftCalibration {
+        with_covariance: d.len(),
+        within: CHI3_SIGMAS.map(frac),
+        worst: d.iter().cloned().fold(0.0, f64::max),
+    }
 }
 
 #[cfg(test)]
@@ -229,5 +268,22 @@ mod tests {
         let e = truth.edge_error(&held).unwrap();
         assert_eq!(e.sigma[0], None, "{e:?}");
         assert!(e.sigma[1].is_some());
+        assert_eq!(e.shift_mahalanobis, None, "a held shift axis");
+        // a narrow ellipse along x = y (4.5 cm across, 10 m along): the 0.3 m
+        // error in x is within 3 sigma on each axis and 4.7 sigma across it
+        let mut narrow = record.clone();
+        let info = narrow.information.as_mut().unwrap();
+        let (along, across) = (50.0, 0.001);
+        info.covariance[0][0] = along + across;
+        info.covariance[1][1] = along + across;
+        info.covariance[0][1] = along - across;
+        info.covariance[1][0] = along - across;
+        info.covariance[2][2] = 0.01;
+        let e = truth.edge_error(&narrow).unwrap();
+        assert!(e.ratios()[0].unwrap() < 3.0, "{e:?}");
+        let d = e.shift_mahalanobis.unwrap();
+        assert!((d - 0.3 / (2.0 * across.sqrt())).abs() < 0.01, "{d}");
+        let joint = shift_calibration(&[e]);
+        assert_eq!((joint.with_covariance, joint.within), (1, [0.0, 0.0, 0.0]));
     }
 }

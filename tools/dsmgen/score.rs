@@ -10,7 +10,7 @@ use std::path::PathBuf;
 use clap::Args;
 use dsmstream::journal::EdgeRecord;
 use dsmstream::poses::{PoseEntry, PosesFile};
-use dsmstream::synth::calibration::{calibration, EdgeError};
+use dsmstream::synth::calibration::{calibration, shift_calibration, EdgeError};
 use dsmstream::synth::Truth;
 
 /// `println!` that ends the program quietly (exit 0) when stdout is closed
@@ -69,6 +69,7 @@ pub fn run(a: ScoreArgs) -> Result<(), String> {
     let pairwise = truth.pairwise_error(&poses);
     let seams = truth.overlap_error(&poses);
     let table = calibration(&edges);
+    let joint = shift_calibration(&edges);
     let mut worst: Vec<(f64, &EdgeError)> = edges
         .iter()
         .filter_map(|e| {
@@ -112,6 +113,7 @@ pub fn run(a: ScoreArgs) -> Result<(), String> {
             "per_dsm_sigma": dsm_cover,
             "edges": {"count": edges.len(), "worst_shift_m": worst_edge_m},
             "calibration": table,
+            "calibration_shift": joint,
             "worst_ratio_edges": worst.iter().map(|(_, e)| e).collect::<Vec<_>>(),
         });
         say!("{doc:#}");
@@ -165,6 +167,15 @@ pub fn run(a: ScoreArgs) -> Result<(), String> {
             c.worst_ratio
         );
     }
+    say!(
+        "| shift (x, y, z jointly: Mahalanobis within the chi-square(3) 68.3 / 95.4 / 99.7 % points) | {} | {} | {:.3} | {:.3} | {:.3} | {:.2} |",
+        joint.with_covariance,
+        edges.len() - joint.with_covariance,
+        joint.within[0],
+        joint.within[1],
+        joint.within[2],
+        joint.worst
+    );
     for (r, e) in worst {
         say!(
             "  {} -> {} ({:?}): worst ratio {r:.1}; error {:.3?} (m, deg), sigma {:.3?}",
