@@ -67,13 +67,7 @@ pub(crate) fn node_sigmas(
             omega: om_r,
             r0,
         });
-        translation_edges.push(BlockEdge {
-            i: e.i,
-            j: e.j,
-            b: Matrix3::identity(),
-            omega: r_i * om_t * r_i.transpose(),
-            r0,
-        });
+        translation_edges.push(translation_edge(e.i, e.j, &om_t, &r_i));
     }
     let rotation_null = rotation_null(rotations);
     let translation_null: Vec<Vec<Vector3<f64>>> = (0..3)
@@ -102,6 +96,23 @@ pub(crate) fn node_sigmas(
             }
         })
         .collect()
+}
+
+/// The translation block of an edge i -> j given the rotations: its
+/// information `omega` (about i's axes) turned into world axes by i's rotation.
+pub(crate) fn translation_edge(
+    i: usize,
+    j: usize,
+    omega: &Matrix3<f64>,
+    r_i: &Matrix3<f64>,
+) -> BlockEdge {
+    BlockEdge {
+        i,
+        j,
+        b: Matrix3::identity(),
+        omega: r_i * omega * r_i.transpose(),
+        r0: Vector3::zeros(),
+    }
 }
 
 fn isolated_nodes(n: usize, components: &[Vec<usize>]) -> Vec<bool> {

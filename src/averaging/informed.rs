@@ -32,7 +32,7 @@ use super::block::BlockEdge;
 use super::consistency::{
     active_components, mahalanobis_residuals, unreliable_weight, variance_factor,
 };
-use super::covariance::{node_sigmas, CovarianceMethod, NodeSigma};
+use super::covariance::{node_sigmas, translation_edge, CovarianceMethod, NodeSigma};
 use super::joint::joint_node_sigmas;
 use super::reliability::outlier_variances;
 use super::{average, AveragingError, AveragingOptions, AveragingResult};
@@ -316,14 +316,8 @@ fn add_outlier_variances(
         .zip(weighted)
         .filter(|(_, o)| o.fixed_view::<3, 3>(3, 3).amax() > 0.0)
         .map(|(e, o)| {
-            let r_i = rotations[e.i];
-            BlockEdge {
-                i: e.i,
-                j: e.j,
-                b: Matrix3::identity(),
-                omega: r_i * o.fixed_view::<3, 3>(3, 3) * r_i.transpose(),
-                r0: Vector3::zeros(),
-            }
+            let om_t = o.fixed_view::<3, 3>(3, 3).into_owned();
+            translation_edge(e.i, e.j, &om_t, &rotations[e.i])
         })
         .collect();
     let Some(extra) = outlier_variances(graph.n, &edges, components, options.outlier_sigma) else {

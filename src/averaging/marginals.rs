@@ -19,7 +19,7 @@
 
 use nalgebra::{SMatrix, SVector};
 
-use super::direct::{Budget, Symbolic};
+use super::direct::{Budget, Factor, Symbolic};
 
 /// The free motions of one component: its members and an orthonormal basis of
 /// the motions, each vector given by its blocks at those members (zero
@@ -109,13 +109,45 @@ impl<const D: usize> ComponentMotions<'_, D> {
     }
 }
 
+/// The factor of H with each component (`members`) anchored at its node of
+/// most information (the largest trace of its diagonal block: the anchored
+/// inverse is the covariance in the gauge that holds it), and which nodes are
+/// fixed: the anchors and the nodes outside the components, decoupled with an
+/// identity block. None when the factor exceeds `budget` or H is not positive
+/// definite there.
+pub(crate) fn anchored_factor<'a, const D: usize>(
+    mut diagonal: Vec<SMatrix<f64, D, D>>,
+    links: impl Iterator<Item = (usize, usize, SMatrix<f64, D, D>)> + Clone,
+    members: impl Iterator<Item = &'a [usize]>,
+    budget: Budget,
+) -> Option<(Factor<D>, Vec<bool>)> {
+    let n = diagonal.len();
+    let mut fixed = vec![true; n];
+    for members in members {
+        let anchor = members.iter().copied().max_by(|&a, &b| {
+            diagonal[a]
+                .trace()
+                .total_cmp(&diagonal[b].trace())
+                .then(b.cmp(&a))
+        })?;
+        members.iter().for_each(|&k| fixed[k] = k == anchor);
+    }
+    for (d, _) in diagonal.iter_mut().zip(&fixed).filter(|(_, &f)| f) {
+        *d = SMatrix::identity();
+    }
+    let off = links.filter(|(i, j, _)| !fixed[*i] && !fixed[*j]);
+    let symbolic = Symbolic::analyse(n, off.clone().map(|(i, j, _)| (i, j)), budget)?;
+    let factor = symbolic.factor(&diagonal, off)?;
+    Some((factor, fixed))
+}
+
 /// The diagonal of each node's block of P C P^T (module doc), from H's diagonal
 /// blocks and its blocks H_ij of linked nodes; zero for nodes in no component
 /// of two or more. None when the factor exceeds `budget` or the anchored
 /// matrix is not positive definite (a component with more free directions than
 /// `motions` names).
 pub(crate) fn gauge_free_marginals<const D: usize>(
-    mut diagonal: Vec<SMatrix<f64, D, D>>,
+    diagonal: Vec<SMatrix<f64, D, D>>,
     links: impl Iterator<Item = (usize, usize, SMatrix<f64, D, D>)> + Clone,
     motions: &[ComponentMotions<D>],
     budget: Budget,
@@ -124,23 +156,8 @@ pub(crate) fn gauge_free_marginals<const D: usize>(
     let linked: Vec<&ComponentMotions<D>> =
         motions.iter().filter(|c| c.members.len() > 1).collect();
     let blocks: Vec<_> = linked.iter().map(|c| c.blocks()).collect::<Option<_>>()?;
-    // Anchors and nodes outside the components are decoupled with an identity block.
-    let mut fixed = vec![true; n];
-    for c in &linked {
-        let anchor = c.members.iter().copied().max_by(|&a, &b| {
-            diagonal[a]
-                .trace()
-                .total_cmp(&diagonal[b].trace())
-                .then(b.cmp(&a))
-        })?;
-        c.members.iter().for_each(|&k| fixed[k] = k == anchor);
-    }
-    for (d, _) in diagonal.iter_mut().zip(&fixed).filter(|(_, &f)| f) {
-        *d = SMatrix::identity();
-    }
-    let off = links.filter(|(i, j, _)| !fixed[*i] && !fixed[*j]);
-    let symbolic = Symbolic::analyse(n, off.clone().map(|(i, j, _)| (i, j)), budget)?;
-    let factor = symbolic.factor(&diagonal, off)?;
+    let members = linked.iter().map(|c| c.members);
+    let (factor, fixed) = anchored_factor(diagonal, links, members, budget)?;
     let mut c = factor.inverse_diagonal();
     // S = C G^T: the components are decoupled, so one solve per condition
     // serves all of them.

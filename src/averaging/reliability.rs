@@ -28,7 +28,8 @@
 //! factor exceeds the direct budget keep the model's sigmas (None).
 
 use super::block::BlockEdge;
-use super::direct::{Budget, Factor, Symbolic, BUDGET_PER_NODE_AND_LINK};
+use super::direct::{Budget, Factor, BUDGET_PER_NODE_AND_LINK};
+use super::marginals::anchored_factor;
 use crate::rng::SplitMix64;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
@@ -91,29 +92,12 @@ impl<'a> Anchored<'a> {
             diagonal[e.i] += e.omega;
             diagonal[e.j] += e.omega;
         }
-        let mut fixed = vec![true; n];
         let linked: Vec<&Vec<usize>> = components.iter().filter(|m| m.len() > 1).collect();
-        for members in &linked {
-            let anchor = members.iter().copied().max_by(|&a, &b| {
-                diagonal[a]
-                    .trace()
-                    .total_cmp(&diagonal[b].trace())
-                    .then(b.cmp(&a))
-            })?;
-            members.iter().for_each(|&k| fixed[k] = k == anchor);
-        }
-        for (d, _) in diagonal.iter_mut().zip(&fixed).filter(|(_, &f)| f) {
-            *d = Matrix3::identity();
-        }
-        let off: Vec<(usize, usize, Matrix3<f64>)> = edges
-            .iter()
-            .filter(|e| !fixed[e.i] && !fixed[e.j])
-            .map(|e| (e.i, e.j, -e.omega))
-            .collect();
+        let links = edges.iter().map(|e| (e.i, e.j, -e.omega));
         let (blocks, updates) = BUDGET_PER_NODE_AND_LINK;
         let budget = Budget::relative(n, edges.len(), blocks, updates);
-        let symbolic = Symbolic::analyse(n, off.iter().map(|&(i, j, _)| (i, j)), budget)?;
-        let factor = symbolic.factor(&diagonal, off.iter().copied())?;
+        let members = linked.iter().map(|m| m.as_slice());
+        let (factor, fixed) = anchored_factor(diagonal, links, members, budget)?;
         Some(Anchored {
             n,
             fixed,
