@@ -138,7 +138,7 @@ fn rotation_null(rotations: &[Matrix3<f64>]) -> Vec<Vec<Vector3<f64>>> {
 
 /// The free motions of each component: `null[a][k]` is node k's block of the
 /// motion along axis a, scaled to unit length over the component.
-fn component_motions<'a>(
+pub(crate) fn component_motions<'a>(
     null: &[Vec<Vector3<f64>>],
     components: &'a [Vec<usize>],
 ) -> Vec<ComponentMotions<'a, 3>> {

@@ -28,8 +28,9 @@
 //! factor exceeds the direct budget keep the model's sigmas (None).
 
 use super::block::BlockEdge;
+use super::covariance::component_motions;
 use super::direct::{Budget, Factor, BUDGET_PER_NODE_AND_LINK};
-use super::marginals::anchored_factor;
+use super::marginals::{anchored_factor, project_out, ComponentMotions};
 use crate::rng::SplitMix64;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
@@ -81,7 +82,8 @@ pub(crate) fn outlier_variances(
 struct Anchored<'a> {
     n: usize,
     fixed: Vec<bool>,
-    linked: Vec<&'a Vec<usize>>,
+    /// Each component's free shifts, projected out of the effects (mean gauge).
+    motions: Vec<ComponentMotions<'a, 3>>,
     factor: Factor<3>,
 }
 
@@ -98,10 +100,12 @@ impl<'a> Anchored<'a> {
         let budget = Budget::relative(n, edges.len(), blocks, updates);
         let members = linked.iter().map(|m| m.as_slice());
         let (factor, fixed) = anchored_factor(diagonal, links, members, budget)?;
+        let shifts: Vec<Vec<Vector3<f64>>> =
+            (0..3).map(|a| vec![Vector3::ith(a, 1.0); n]).collect();
         Some(Anchored {
             n,
             fixed,
-            linked,
+            motions: component_motions(&shifts, components),
             factor,
         })
     }
@@ -133,7 +137,7 @@ impl<'a> Anchored<'a> {
                         if redundancy <= BRIDGE {
                             continue;
                         }
-                        to_mean(&mut x, &self.linked);
+                        project_out(&mut x, &self.motions);
                         let weight = OUTLIER_RATE * lambda / redundancy;
                         for (s, xk) in sum.iter_mut().zip(&x) {
                             *s += xk.component_mul(xk) * weight;
@@ -200,7 +204,7 @@ impl<'a> Anchored<'a> {
                 self.add_edge(&mut rhs, &edges[*k], g * rng.normal());
             }
             let mut x = self.factor.solve(&rhs);
-            to_mean(&mut x, &self.linked);
+            project_out(&mut x, &self.motions);
             out.iter_mut()
                 .zip(&x)
                 .for_each(|(o, v)| *o += v.component_mul(v) / samples as f64);
@@ -222,14 +226,6 @@ fn directions(omega: &Matrix3<f64>) -> Vec<(f64, Vector3<f64>)> {
         .collect()
 }
 
-/// Each component's mean shift taken out (the translations' mean gauge).
-fn to_mean(x: &mut [Vector3<f64>], components: &[&Vec<usize>]) {
-    for members in components {
-        let mean = members.iter().map(|&k| x[k]).sum::<Vector3<f64>>() / members.len() as f64;
-        members.iter().for_each(|&k| x[k] -= mean);
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -242,6 +238,19 @@ mod tests {
             omega: Matrix3::identity() / (sigma * sigma),
             r0: Vector3::zeros(),
         }
+    }
+
+    /// A ring of `n` DSMs (centimetre edges) with a weak chord to the seventh
+    /// next at every `chord_every`-th.
+    fn ring(n: usize, chord_every: usize) -> Vec<BlockEdge> {
+        let mut edges = Vec::new();
+        for k in 0..n {
+            edges.push(edge(k, (k + 1) % n, 0.01 + 0.001 * k as f64));
+            if k % chord_every == 0 {
+                edges.push(edge(k, (k + 7) % n, 0.5 + 0.1 * k as f64));
+            }
+        }
+        edges
     }
 
     /// Two groups of three DSMs, each group a tight triangle (1 cm), joined by
@@ -288,13 +297,7 @@ mod tests {
     #[test]
     fn the_sampled_sum_matches_the_exact_one() {
         let n = 40;
-        let mut edges = Vec::new();
-        for k in 0..n {
-            edges.push(edge(k, (k + 1) % n, 0.01 + 0.001 * k as f64));
-            if k % 3 == 0 {
-                edges.push(edge(k, (k + 7) % n, 0.5 + 0.1 * k as f64));
-            }
-        }
+        let edges = ring(n, 3);
         let all = vec![(0..n).collect::<Vec<usize>>()];
         let system = Anchored::new(n, &edges, &all).unwrap();
         let exact = system.exact(&edges, 34.0);
@@ -311,11 +314,7 @@ mod tests {
     #[test]
     fn the_sums_do_not_depend_on_the_threads() {
         let n = 40;
-        let mut edges = Vec::new();
-        for k in 0..n {
-            edges.push(edge(k, (k + 1) % n, 0.01 + 0.001 * k as f64));
-            edges.push(edge(k, (k + 7) % n, 0.5 + 0.1 * k as f64));
-        }
+        let edges = ring(n, 1);
         let all = vec![(0..n).collect::<Vec<usize>>()];
         let run = |threads: usize| {
             rayon::ThreadPoolBuilder::new()
