@@ -71,12 +71,7 @@ impl LasSamples {
             for p in batch.points() {
                 let p = p.map_err(|e| bad(format!("reading points: {e}")))?;
                 seen += 1;
-                let noise = matches!(
-                    p.classification,
-                    Classification::LowPoint | Classification::HighNoise
-                );
-                let first = p.return_number <= 1;
-                if noise || p.is_withheld || !(first || config.all_returns) {
+                if !on_surface(&p, config.all_returns) {
                     continue;
                 }
                 kept_filter += 1;
@@ -102,8 +97,18 @@ impl LasSamples {
     }
 }
 
+/// A point of the surface a DSM shows: not noise (classes 7 low point, 18
+/// high noise), not withheld, and a first return unless `all_returns`.
+pub fn on_surface(p: &las::Point, all_returns: bool) -> bool {
+    let noise = matches!(
+        p.classification,
+        Classification::LowPoint | Classification::HighNoise
+    );
+    !noise && !p.is_withheld && (p.return_number <= 1 || all_returns)
+}
+
 /// EPSG code of the horizontal CRS recorded in the header, if any.
-fn crs_epsg(header: &las::Header) -> Option<u32> {
+pub fn crs_epsg(header: &las::Header) -> Option<u32> {
     if let Some(wkt) = header.get_wkt_crs_bytes() {
         let text = String::from_utf8_lossy(wkt);
         if let Some(code) = wkt_epsg(&text) {

@@ -72,7 +72,7 @@ pub fn register<R: Pyramid, M: Pyramid>(
             Ok(r) => {
                 let c = Point3::from(Vector3::from(r.0.centre_m));
                 let ended = r.0.t_ref_moving.transform_point(&c) - c;
-                tracing::debug!(start = ?start.shift_m, ?ended, cost = r.1, status = ?r.0.status, "start result");
+                tracing::debug!(start = ?start.shift_m, ?ended, cost = r.1, status = ?r.0.status, inliers = r.0.inliers, samples = r.0.samples, overlap = r.0.overlap, "start result");
                 tried.push(r)
             }
             Err(e) => {

@@ -9,12 +9,14 @@
 //! buildings and trees) → `surface` (the height function) → `tiles` (layout,
 //! perturbation, pixel-centre rendering) and `render` (gridding from scattered
 //! points: lidar max/mean, IDW, TIN, smoothed) → `output` (COGs and truth.json); `cut` (a real
-//! GeoTIFF through the same frames into COGs and truth.json).
+//! GeoTIFF through the same frames into COGs and truth.json); `points` (a lidar
+//! point cloud gridded into a DSM, to register real DSMs against).
 
 pub mod calibration;
 pub mod cut;
 pub mod objects;
 pub mod output;
+pub mod points;
 pub mod render;
 pub mod score;
 pub mod surface;

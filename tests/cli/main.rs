@@ -7,6 +7,7 @@ mod util;
 mod align;
 mod align_journal;
 mod coarse;
+mod codem;
 mod corner;
 mod demo;
 mod dsmgen;

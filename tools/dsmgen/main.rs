@@ -5,10 +5,12 @@
 //! - `dsmgen big`: one large unperturbed DSM written tile by tile (ingest benchmark)
 //! - `dsmgen truth-grid`: the noise-free true surface over a tile set or bbox
 //! - `dsmgen cut`: overlapping perturbed tiles cut from a real DSM + truth.json
+//! - `dsmgen grid`: a lidar point cloud gridded into a DSM (highest first return per cell)
 //! - `dsmgen score`: poses.json and its journal against truth.json (errors, sigma calibration)
 //!
 //! Same seed, same bytes. Exit codes: 0 ok, 1 failure, 2 bad parameters.
 
+mod grid;
 mod score;
 
 use std::path::PathBuf;
@@ -44,6 +46,8 @@ enum Command {
     TruthGrid(TruthGridArgs),
     /// Overlapping tiles cut from a real DSM, each moved by a known rigid motion, and truth.json.
     Cut(CutArgs),
+    /// A lidar point cloud (LAS/LAZ) gridded into a DSM GeoTIFF: the highest (or mean) first return per cell.
+    Grid(grid::GridArgs),
     /// A poses.json (and its journal) against truth.json: per-DSM, pairwise and per-pair errors, sigma calibration.
     Score(score::ScoreArgs),
 }
@@ -302,6 +306,7 @@ fn main() {
         Command::Big(a) => big(a),
         Command::TruthGrid(a) => truth_grid(a),
         Command::Cut(a) => cut(a),
+        Command::Grid(a) => grid::run(a),
         Command::Score(a) => {
             if let Err(message) = score::run(a) {
                 eprintln!("error: {message}");
