@@ -39,17 +39,22 @@ pub const YAW_SHARE: f64 = 0.5;
 /// `k_px` (pixels): x and y get (k pixel)^2, the other axes their shares
 /// (rotations as arcs at the fit's RMS radius).
 pub fn gridding_covariance(info: &FitInformation, pixel_m: f64, k_px: f64) -> Matrix6<f64> {
-    let arc_m = k_px * pixel_m;
-    let radius_m = info.radius_m.max(1e-6);
-    let sd = [
+    let sd = gridding_sd(k_px * pixel_m, info.radius_m);
+    Matrix6::from_diagonal(&sd.map(|s| s * s))
+}
+
+/// The floor's standard deviation per axis (x, y, z m, roll, pitch, yaw rad)
+/// for a horizontal floor of `arc_m` over points at RMS radius `radius_m`.
+pub fn gridding_sd(arc_m: f64, radius_m: f64) -> Vector6<f64> {
+    let radius_m = radius_m.max(1e-6);
+    Vector6::new(
         arc_m,
         arc_m,
         HEIGHT_SHARE * arc_m,
         TILT_SHARE * arc_m / radius_m,
         TILT_SHARE * arc_m / radius_m,
         YAW_SHARE * arc_m / radius_m,
-    ];
-    Matrix6::from_diagonal(&Vector6::from(sd.map(|s| s * s)))
+    )
 }
 
 /// Sets the gridding floor of `info` on the directions it measures (held

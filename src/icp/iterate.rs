@@ -6,10 +6,11 @@
 //! estimate is the plain step's end or Anderson's jump along a steady creep
 //! (`accelerate`); the stopping rules judge the plain step.
 
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Vector6};
 
 use super::accelerate::Anderson;
 use super::associate::Association;
+use super::floor::gridding_sd;
 use super::robust::{smooth_only, weighted};
 use super::{IcpConfig, IcpError, IcpStatus, Metric};
 use crate::fit::{
@@ -25,6 +26,10 @@ pub(super) struct Phase {
     pub sigma: FitSigma,
     /// Most inliers seen in one iteration (a later collapse means divergence).
     pub peak_inliers: usize,
+    /// When the loop ran out of iterations and its answer is the mean of its
+    /// last iterates ([`settle`]): their spread per axis (x, y, z m, roll,
+    /// pitch, yaw rad), part of the answer's uncertainty.
+    pub jitter: Option<Vector6<f64>>,
 }
 
 impl Default for Phase {
@@ -36,6 +41,7 @@ impl Default for Phase {
             constraint_ratio: 1.0,
             sigma: FitSigma::default(),
             peak_inliers: 0,
+            jitter: None,
         }
     }
 }
@@ -78,6 +84,11 @@ pub(super) struct Rules {
     pub degeneracy: DegeneracyRule,
     pub start: Isometry3<f64>,
     pub cap_m: f64,
+    /// The pair's gridding floor at this level (metres, each horizontal axis:
+    /// `--sigma-floor-px` pixels; the other axes their shares, see
+    /// `icp::floor`): iterates that differ by less are as one to [`settle`],
+    /// as they are to the reported sigmas.
+    pub floor_m: f64,
 }
 
 impl Rules {
@@ -158,7 +169,11 @@ pub(super) fn iterate(
         };
     }
     if phase.status == IcpStatus::MaxIterations {
-        settle(&mut phase, &recent);
+        settle(
+            &mut phase,
+            &recent,
+            &gridding_sd(rules.floor_m, stop.lever_m / 3f64.sqrt()),
+        );
     }
     Ok(phase)
 }
@@ -183,10 +198,15 @@ const SETTLE_WINDOW: usize = 10;
 /// inlier set flips, each step overshoots by decimetres on a rough cost) has
 /// found that point: their mean is a better answer than the last iterate.
 /// Without a trend (the two halves of the last [`SETTLE_WINDOW`] iterates
-/// agree within the fit's standard errors) the answer becomes that mean; with
-/// a jitter within those standard errors too, the loop counts as converged.
-/// A drift keeps its last iterate and `MaxIterations`.
-fn settle(phase: &mut Phase, recent: &[Isometry3<f64>]) {
+/// agree within the fit's standard errors, the gridding floor `floor` (per
+/// axis, as the reported sigmas have it) added) the answer becomes that mean
+/// and the iterates' spread
+/// its `jitter`; with a jitter within those standard errors too, the loop
+/// counts as converged. A drift keeps its last iterate and `MaxIterations`.
+/// (A 2 m lidar grid of Tommy Thompson Park against its 1 m DSM cycled by
+/// 5 cm along y, its fit's sigma 0.8 cm, the floor 10 cm: `MaxIterations`
+/// 2 cm from the truth before the floor counted.)
+fn settle(phase: &mut Phase, recent: &[Isometry3<f64>], floor: &Vector6<f64>) {
     let n = recent.len();
     if n < SETTLE_WINDOW + 1 {
         return;
@@ -197,39 +217,46 @@ fn settle(phase: &mut Phase, recent: &[Isometry3<f64>]) {
     let about = |t: &Isometry3<f64>| {
         let d = t * last.inverse();
         let (v, r) = (d.translation.vector, d.rotation.scaled_axis());
-        nalgebra::Vector6::new(v.x, v.y, v.z, r.x, r.y, r.z)
+        Vector6::new(v.x, v.y, v.z, r.x, r.y, r.z)
     };
-    let mean = |ts: &[Isometry3<f64>]| {
-        ts.iter().map(about).sum::<nalgebra::Vector6<f64>>() / ts.len() as f64
-    };
+    let mean = |ts: &[Isometry3<f64>]| ts.iter().map(about).sum::<Vector6<f64>>() / ts.len() as f64;
     let half = SETTLE_WINDOW / 2;
     let (early, late, all) = (mean(&window[..half]), mean(&window[half..]), mean(window));
     let spread = window
         .iter()
         .map(|t| (about(t) - all).map(|v| v * v))
-        .sum::<nalgebra::Vector6<f64>>()
+        .sum::<Vector6<f64>>()
         .map(|v| (v / SETTLE_WINDOW as f64).sqrt());
     let sigma = &phase.sigma;
     let scale = |k: usize| {
-        if k < 3 {
+        let s = if k < 3 {
             sigma.trans_m[k]
         } else {
             sigma.rot_deg[k - 3].to_radians()
+        };
+        // a held axis (no sigma) gets no floor: it must not move
+        if s > 0.0 {
+            s.hypot(floor[k])
+        } else {
+            s
         }
     };
     // axes the fit gave no sigma (held, or not estimated) must not move at all
-    let within = |v: &nalgebra::Vector6<f64>, factor: f64| {
-        (0..6).all(|k| v[k].abs() <= factor * scale(k) + 1e-9)
-    };
+    let within =
+        |v: &Vector6<f64>, factor: f64| (0..6).all(|k| v[k].abs() <= factor * scale(k) + 1e-9);
     if !within(&(late - early), 1.0) {
+        tracing::trace!(trend = ?(late - early), ?spread, ?floor, "not settled: a trend");
         return;
     }
     phase.t_ref_moving = Isometry3::from_parts(
         nalgebra::Translation3::from(all.fixed_rows::<3>(0).into_owned()),
         nalgebra::UnitQuaternion::from_scaled_axis(all.fixed_rows::<3>(3).into_owned()),
     ) * last;
+    phase.jitter = Some(spread);
     if within(&spread, 1.0) {
         phase.status = IcpStatus::Converged;
+    } else {
+        tracing::trace!(?spread, sigma = ?phase.sigma, ?floor, "settled at the mean, jitter beyond the sigmas");
     }
 }
 
@@ -292,14 +319,24 @@ mod tests {
             .map(|k| shift(1.0 + if k % 2 == 0 { 0.05 } else { -0.05 }))
             .collect();
         let mut phase = phase_with_sigma(0.08);
-        settle(&mut phase, &jitter);
+        settle(&mut phase, &jitter, &Vector6::zeros());
         assert!((phase.t_ref_moving.translation.vector.x - 1.0).abs() < 1e-9);
         assert_eq!(phase.status, IcpStatus::Converged);
         // the same jitter with a 2 cm sigma: the mean, still not converged
         let mut phase = phase_with_sigma(0.02);
-        settle(&mut phase, &jitter);
+        settle(&mut phase, &jitter, &Vector6::zeros());
         assert!((phase.t_ref_moving.translation.vector.x - 1.0).abs() < 1e-9);
         assert_eq!(phase.status, IcpStatus::MaxIterations);
+        // with a 10 cm gridding floor the 5 cm jitter is within: converged,
+        // the jitter kept for the covariance
+        let mut phase = phase_with_sigma(0.02);
+        settle(&mut phase, &jitter, &Vector6::repeat(0.1));
+        assert_eq!(phase.status, IcpStatus::Converged);
+        let spread = phase.jitter.expect("the mean was taken");
+        assert!(
+            (spread.x - 0.05).abs() < 1e-9 && spread.y.abs() < 1e-12,
+            "{spread:?}"
+        );
     }
 
     #[test]
@@ -307,12 +344,17 @@ mod tests {
         let drift: Vec<_> = (0..20).map(|k| shift(0.03 * k as f64)).collect();
         let mut phase = phase_with_sigma(0.08);
         phase.t_ref_moving = drift[19];
-        settle(&mut phase, &drift);
+        settle(&mut phase, &drift, &Vector6::zeros());
         assert_eq!(phase.t_ref_moving, drift[19]);
+        assert_eq!(phase.status, IcpStatus::MaxIterations);
+        assert_eq!(phase.jitter, None);
+        // a drift of 15 cm between the halves stays one beyond a 10 cm floor
+        let mut phase = phase_with_sigma(0.08);
+        settle(&mut phase, &drift, &Vector6::repeat(0.1));
         assert_eq!(phase.status, IcpStatus::MaxIterations);
         // too few iterates to judge
         let mut phase = phase_with_sigma(0.08);
-        settle(&mut phase, &drift[..5]);
+        settle(&mut phase, &drift[..5], &Vector6::zeros());
         assert_eq!(phase.status, IcpStatus::MaxIterations);
     }
 

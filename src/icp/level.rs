@@ -2,9 +2,10 @@
 //! match against the reference's same level, run the loop (first on an even
 //! subset of the samples, then on all of them), and judge how it ended.
 
-use nalgebra::{Isometry3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Matrix6, UnitQuaternion, Vector3, Vector6};
 
 use super::associate::{block_order, Association, Distances, Matcher};
+use super::backward::inflate;
 use super::config::{LADDER_SAMPLES, PAPER_TAU_M};
 use super::final_rule;
 use super::iterate::{iterate, Convergence, Phase, Rules};
@@ -37,6 +38,8 @@ pub(super) struct LevelOutcome {
     iterations: usize,
     constraint_ratio: f64,
     sigma: FitSigma,
+    /// The spread of the iterates whose mean the answer is (`Phase::jitter`).
+    jitter: Option<Vector6<f64>>,
     /// The matches at the returned transform, over every sample.
     final_association: Association,
     nn: NnStats,
@@ -148,6 +151,7 @@ impl<'a, R: Pyramid> Level<'a, R> {
             iterations,
             constraint_ratio: phase.constraint_ratio,
             sigma: phase.sigma,
+            jitter: phase.jitter,
             final_association,
             nn,
         })
@@ -264,7 +268,13 @@ impl LevelOutcome {
         let (corrs, cells) = smooth_only(a.corrs.clone(), &a.cells, config.max_roughness_m);
         let corrs = weighted(corrs, &cells, config.metric);
         let prior = config.rotation_prior(&self.t_ref_moving, &self.start);
-        fit_information_with(&corrs, config.model, rule, prior.as_ref())
+        let mut info = fit_information_with(&corrs, config.model, rule, prior.as_ref())?;
+        // an answer that is the mean of a jittering loop is uncertain by that
+        // jitter too (local axes at the overlap centre, near the centroid)
+        if let Some(j) = self.jitter {
+            inflate(&mut info, &Matrix6::from_diagonal(&j.map(|v| v * v)));
+        }
+        Some(info)
     }
 
     /// The registration's result: the transform taken to world coordinates
@@ -350,6 +360,7 @@ pub(super) fn full_resolution<R: Pyramid, M: Pyramid>(
         degeneracy: final_rule(pixel_m),
         start: Isometry3::from_parts(t_start.translation, prior_about),
         cap_m,
+        floor_m: config.sigma_floor_px * pixel_m,
     };
     let tau_m = config.tau_at(0, pixel_m, f64::NAN);
     let outcome = level.run(&origin, t_start, tau_m, &rules)?;

@@ -165,6 +165,7 @@ fn from_start<R: Pyramid, M: Pyramid>(
             degeneracy: level_rule(index, starts.pixel_m),
             start: t_start,
             cap_m: starts.radius_m,
+            floor_m: config.sigma_floor_px * pixel_m,
         };
         let tau_m = config.tau_at(index, pixel_m, start.cost_m);
         let outcome = level.run(&origin, t_ref_moving_local, tau_m, &rules)?;

@@ -30,3 +30,4 @@ mod scale3;
 mod shard;
 mod store_reliability;
 mod ttp_collection;
+mod ttp_lidar;
