@@ -16,47 +16,25 @@
 
 use std::path::{Path, PathBuf};
 
-use crate::util::{assert_ok, bin, dsmgen, fixtures, ingest};
+use crate::util::{dsmgen, dsmgen_grid, fixtures, ingest, pair_json, shift_and_sigma};
 
 fn codem(name: &str) -> PathBuf {
     fixtures().join("real/codem").join(name)
 }
 
-/// `dsmgen grid` of the fixture's lidar into `dir`/`name`.tif.
+/// `dsmgen grid` of the fixture's lidar at 1 m into `dir`/`name`.tif.
 fn grid_lidar(dir: &Path, name: &str, extra: &[&str]) -> PathBuf {
     let out = dir.join(format!("{name}.tif"));
-    let run = dsmgen()
-        .arg("grid")
-        .arg("--points")
-        .arg(codem("pc.laz"))
-        .args(["--gsd", "1"])
-        .args(extra)
-        .arg("--out")
-        .arg(&out)
-        .output()
-        .unwrap();
-    assert_ok(&run);
+    dsmgen_grid(&codem("pc.laz"), &[&["--gsd", "1"], extra].concat(), &out);
     out
 }
 
-/// `pair` at the defaults: (status, shift, shift sigma) from its JSON.
+/// `pair` at the defaults, asserted to exit 0: (status, shift, shift sigma).
 fn pair(store: &Path, reference: &str, moving: &str) -> (String, [f64; 3], [f64; 3]) {
-    let out = bin()
-        .arg("pair")
-        .arg(store)
-        .args([reference, moving, "--json"])
-        .output()
-        .unwrap();
-    assert_ok(&out);
-    let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    let v = |k: &serde_json::Value| -> [f64; 3] {
-        std::array::from_fn(|i| k[i].as_f64().expect("a number"))
-    };
-    (
-        json["status"].as_str().unwrap().to_string(),
-        v(&json["shift_m"]),
-        v(&json["sigma"]["shift_m"]),
-    )
+    let (code, doc) = pair_json(store, reference, moving);
+    assert_eq!(code, Some(0), "{doc}");
+    let (shift, sigma) = shift_and_sigma(&doc);
+    (doc["status"].as_str().unwrap().to_string(), shift, sigma)
 }
 
 #[test]

@@ -8,20 +8,7 @@ use std::path::Path;
 
 use nalgebra::{Isometry3, Matrix4, Point3, Rotation3, UnitQuaternion, Vector3};
 
-use crate::util::{bin, dsmgen_tiles, fixtures, ingest, text};
-
-/// `pair <store> <reference> <moving> --json` at default flags: exit code and document.
-fn pair(store: &Path, reference: &str, moving: &str) -> (Option<i32>, serde_json::Value) {
-    let out = bin()
-        .arg("pair")
-        .arg(store)
-        .args([reference, moving, "--json"])
-        .output()
-        .unwrap();
-    let doc = serde_json::from_slice(&out.stdout)
-        .unwrap_or_else(|_| panic!("no JSON: {}", text(&out.stderr)));
-    (out.status.code(), doc)
-}
+use crate::util::{dsmgen_tiles, fixtures, ingest, pair_json as pair};
 
 fn isometry(rows: &serde_json::Value) -> Isometry3<f64> {
     let m = Matrix4::from_fn(|r, c| rows[r][c].as_f64().unwrap());

@@ -2,7 +2,7 @@
 //! four tiles of the 50 x 50 grid of seed 5): where `pair` once gave wrong
 //! answers with sub-metre sigmas, it must now be right or say how unsure it is.
 
-use crate::util::{bin, fixtures};
+use crate::util::{fixtures, pair_json, shift_and_sigma};
 
 /// Runs `pair` on two tiles of narrow64: the exit code, the JSON, and the
 /// error (estimate minus truth, metres) and reported sigma of the shift at
@@ -13,16 +13,10 @@ fn pair(reference: &str, moving: &str) -> (Option<i32>, serde_json::Value, [f64;
     let store = dir.path().join("s.zarr");
     let tif = |id: &str| data.join(format!("{id}.tif"));
     crate::util::ingest(&[tif(reference), tif(moving)], &store);
-    let out = bin()
-        .arg("pair")
-        .arg(&store)
-        .args([reference, moving, "--json"])
-        .output()
-        .unwrap();
-    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let (code, v) = pair_json(&store, reference, moving);
     let error = crate::util::shift_error(&data.join("truth.json"), reference, moving, &v);
-    let sigma = [0, 1, 2].map(|k| v["sigma"]["shift_m"][k].as_f64().unwrap_or(f64::INFINITY));
-    (out.status.code(), v, error, sigma)
+    let sigma = shift_and_sigma(&v).1;
+    (code, v, error, sigma)
 }
 
 /// tile_941 slid 15 m along its strip onto a smooth 8 m of field and was

@@ -54,6 +54,43 @@ pub fn ingest(inputs: &[PathBuf], store: &Path) {
         .unwrap());
 }
 
+/// `dsmstream pair <store> <reference> <moving> --json` at the defaults: exit
+/// code and document (a panic naming stderr when there is no JSON).
+pub fn pair_json(store: &Path, reference: &str, moving: &str) -> (Option<i32>, serde_json::Value) {
+    let out = bin()
+        .arg("pair")
+        .arg(store)
+        .args([reference, moving, "--json"])
+        .output()
+        .unwrap();
+    let doc = serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|_| panic!("no JSON: {}", text(&out.stderr)));
+    (out.status.code(), doc)
+}
+
+/// The shift at the fit's centre and its sigma, per axis, from `pair --json`
+/// (an axis without a sigma, held, as infinity).
+pub fn shift_and_sigma(doc: &serde_json::Value) -> ([f64; 3], [f64; 3]) {
+    let at = |v: &serde_json::Value, k: usize, none: f64| v[k].as_f64().unwrap_or(none);
+    (
+        [0, 1, 2].map(|k| at(&doc["shift_m"], k, f64::NAN)),
+        [0, 1, 2].map(|k| at(&doc["sigma"]["shift_m"], k, f64::INFINITY)),
+    )
+}
+
+/// `dsmgen grid --points <points> <args> --out <out>`, asserted to succeed.
+pub fn dsmgen_grid(points: &Path, args: &[&str], out: &Path) {
+    ok(dsmgen()
+        .arg("grid")
+        .arg("--points")
+        .arg(points)
+        .args(args)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .unwrap());
+}
+
 /// `dsmgen tiles <args> --out <out>`: a generated tile set with its truth.json.
 pub fn dsmgen_tiles(args: &[&str], out: &Path) {
     let gen = dsmgen()
