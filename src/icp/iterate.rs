@@ -169,11 +169,9 @@ pub(super) fn iterate(
         };
     }
     if phase.status == IcpStatus::MaxIterations {
-        settle(
-            &mut phase,
-            &recent,
-            &gridding_sd(rules.floor_m, stop.lever_m / 3f64.sqrt()),
-        );
+        // the overlap's RMS radius: half its diagonal / sqrt(3) (a rectangle)
+        let radius_m = stop.lever_m / 3f64.sqrt();
+        settle(&mut phase, &recent, &gridding_sd(rules.floor_m, radius_m));
     }
     Ok(phase)
 }
@@ -198,11 +196,11 @@ const SETTLE_WINDOW: usize = 10;
 /// inlier set flips, each step overshoots by decimetres on a rough cost) has
 /// found that point: their mean is a better answer than the last iterate.
 /// Without a trend (the two halves of the last [`SETTLE_WINDOW`] iterates
-/// agree within the fit's standard errors, the gridding floor `floor` (per
-/// axis, as the reported sigmas have it) added) the answer becomes that mean
-/// and the iterates' spread
-/// its `jitter`; with a jitter within those standard errors too, the loop
-/// counts as converged. A drift keeps its last iterate and `MaxIterations`.
+/// agree within the fit's standard errors with the gridding floor `floor`
+/// added per axis, as the reported sigmas have it) the answer becomes that
+/// mean and the iterates' spread its `jitter`; with a jitter within those
+/// standard errors too, the loop counts as converged. A drift keeps its last
+/// iterate and `MaxIterations`.
 /// (A 2 m lidar grid of Tommy Thompson Park against its 1 m DSM cycled by
 /// 5 cm along y, its fit's sigma 0.8 cm, the floor 10 cm: `MaxIterations`
 /// 2 cm from the truth before the floor counted.)

@@ -24,7 +24,8 @@ pub enum CellStat {
 }
 
 /// The surface returns of a LAS/LAZ file (first returns, no noise or withheld
-/// points) and the EPSG code its header records, if any.
+/// points) and the EPSG code its header records, if any. All of them in
+/// memory (24 bytes a point): a generator of test rasters, not an ingest path.
 pub fn read_surface_points(path: &Path) -> Result<(Vec<[f64; 3]>, Option<u32>), SynthError> {
     let bad = |m: String| SynthError::BadSource(format!("{}: {m}", path.display()));
     let mut reader = Reader::from_path(path).map_err(|e| bad(e.to_string()))?;
