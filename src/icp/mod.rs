@@ -10,7 +10,8 @@
 //! back), [`sample`] (stratified query points), `level` (one rung of the ladder:
 //! sample, run, judge), `iterate` (the loop on one screen: associate, weight,
 //! fit, converged), `robust` (roughness filter, Tukey weights), [`associate`]
-//! (exact grid NN matches, parallel over blocks), `choice` (the best of the
+//! (exact grid NN matches, parallel over blocks), `compare` (the starts'
+//! places re-scored on the samples they share), `choice` (the best of the
 //! starts' results; an ambiguous pair's spread joins its covariance), `restart`
 //! and `backward` (two checks of the answer whose gaps beyond the noise join
 //! its covariance).
@@ -19,6 +20,7 @@ mod accelerate;
 pub mod associate;
 mod backward;
 mod choice;
+mod compare;
 pub mod config;
 pub mod floor;
 mod heights;
@@ -83,6 +85,7 @@ pub fn register<R: Pyramid, M: Pyramid>(
     if tried.is_empty() {
         return Err(first_error.unwrap_or(IcpError::EmptyOverlap));
     }
+    compare::on_shared_samples(reference, moving, &mut tried)?;
     let forward = choose(tried, starts.ambiguity, starts.pixel_m);
     let limits = (starts.pixel_m, starts.radius_m);
     let forward = restart::check_restarts(reference, moving, config, forward, limits);

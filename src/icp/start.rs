@@ -7,7 +7,7 @@ use nalgebra::Vector3;
 
 use super::{config, IcpConfig, IcpError};
 use crate::coarse::cost::{sample_box, score_shift};
-use crate::coarse::{estimate, CoarseConfig, CoarseError};
+use crate::coarse::{estimate, CoarseConfig, CoarseError, CoarseEstimate};
 use crate::geo::Bounds;
 use crate::grid::{Grid, Pyramid};
 
@@ -87,34 +87,7 @@ pub fn find_starts<R: Pyramid, M: Pyramid>(
             })
         }
     };
-    let take = if found.ambiguity > MULTI_START_AMBIGUITY {
-        MAX_STARTS
-    } else {
-        1
-    };
-    let mut starts: Vec<Start> = found
-        .candidates
-        .iter()
-        .take(take)
-        .map(|c| Start {
-            shift_m: Vector3::from(c.shift_m),
-            cost_m: c.cost_m,
-        })
-        .collect();
-    // Georeferencing is usually right to a few metres: when the search moves the
-    // DSM far, ICP also starts from where it is (at the search's height offset)
-    // and the better final fit wins; two good fits apart make the pair ambiguous.
-    let best = starts[0];
-    if best.shift_m.xy().norm() > config::PAPER_TAU_M.max(3.0 * pixel_m)
-        && !starts
-            .iter()
-            .any(|s| s.shift_m.xy().norm() <= 3.0 * pixel_m)
-    {
-        starts.push(Start {
-            shift_m: Vector3::new(0.0, 0.0, best.shift_m.z),
-            cost_m: best.cost_m,
-        });
-    }
+    let starts = starts_from(&found, pixel_m);
     tracing::debug!(shift = ?found.shift_m, ambiguity = found.ambiguity, level = found.level, candidates = ?found.candidates, "initial search");
     Ok(Starts {
         starts,
@@ -122,6 +95,38 @@ pub fn find_starts<R: Pyramid, M: Pyramid>(
         radius_m,
         pixel_m,
     })
+}
+
+/// The starts the search's candidates give: the best one when the search is
+/// clear, the best [`MAX_STARTS`] when it is ambiguous. Georeferencing is
+/// usually right to a few metres: when the search moves the DSM far, or is
+/// ambiguous, ICP also starts from where the DSM is (at the search's height
+/// offset) unless a start is already there, and the better final fit wins
+/// (compared on the samples the places share); two good fits apart make the
+/// pair ambiguous. On a narrow strip of noisy ground the search's best
+/// minima can all lie where the strip half slides off the reference, a few
+/// metres from each other and farther from the truth than the georeferenced
+/// position is (tile_1451 -> tile_1450 of the 50 x 50 grid of 64 m tiles).
+fn starts_from(found: &CoarseEstimate, pixel_m: f64) -> Vec<Start> {
+    let ambiguous = found.ambiguity > MULTI_START_AMBIGUITY;
+    let take = if ambiguous { MAX_STARTS } else { 1 };
+    let mut starts: Vec<Start> = (found.candidates.iter())
+        .take(take)
+        .map(|c| Start {
+            shift_m: Vector3::from(c.shift_m),
+            cost_m: c.cost_m,
+        })
+        .collect();
+    let best = starts[0];
+    let far = best.shift_m.xy().norm() > config::PAPER_TAU_M.max(3.0 * pixel_m);
+    let at_home = (starts.iter()).any(|s| s.shift_m.xy().norm() <= 3.0 * pixel_m);
+    if (far || ambiguous) && !at_home {
+        starts.push(Start {
+            shift_m: Vector3::new(0.0, 0.0, best.shift_m.z),
+            cost_m: best.cost_m,
+        });
+    }
+    starts
 }
 
 /// Whether valid moving pixels of `overlap` land on valid reference pixels as
@@ -176,8 +181,52 @@ pub fn moved_overlap<R: Pyramid, M: Pyramid>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::coarse::Candidate;
     use crate::geo::GeoTransform;
     use crate::grid::{MemGrid, MemPyramid};
+
+    fn search(ambiguity: f64, places: &[[f64; 2]]) -> CoarseEstimate {
+        let candidates: Vec<Candidate> = (places.iter().enumerate())
+            .map(|(k, p)| Candidate {
+                shift_m: [p[0], p[1], -0.5],
+                cost_m: 0.7 + 0.01 * k as f64,
+                support: 1000,
+            })
+            .collect();
+        CoarseEstimate {
+            shift_m: Vector3::from(candidates[0].shift_m),
+            candidates,
+            ambiguity,
+            level: 0,
+            refined_level: 0,
+            trials: 1,
+        }
+    }
+
+    fn places(starts: &[Start]) -> Vec<[f64; 2]> {
+        starts.iter().map(|s| [s.shift_m.x, s.shift_m.y]).collect()
+    }
+
+    /// A clear search near home gives its best place; an ambiguous one its
+    /// best three and home (at the search's height offset), unless one of
+    /// them is home already; a clear one far away gives its best and home.
+    #[test]
+    fn ambiguous_or_far_searches_also_start_at_home() {
+        let near = [[2.5, -1.0], [9.0, 0.0], [9.0, -1.0], [-7.0, 3.0]];
+        let clear = starts_from(&search(0.5, &near), 0.5);
+        assert_eq!(places(&clear), vec![[2.5, -1.0]]);
+        let edge = [[8.5, -4.0], [9.0, 0.0], [9.0, -1.0], [-7.0, 3.0]];
+        let ambiguous = starts_from(&search(0.95, &edge), 0.5);
+        assert_eq!(
+            places(&ambiguous),
+            vec![[8.5, -4.0], [9.0, 0.0], [9.0, -1.0], [0.0, 0.0]]
+        );
+        assert_eq!(ambiguous[3].shift_m.z, -0.5);
+        let home = [[8.5, -4.0], [0.5, 1.0], [9.0, -1.0]];
+        assert_eq!(starts_from(&search(0.95, &home), 0.5).len(), 3);
+        let far = starts_from(&search(0.5, &[[300.0, -200.0]]), 30.0);
+        assert_eq!(places(&far), vec![[300.0, -200.0], [0.0, 0.0]]);
+    }
 
     #[test]
     fn the_moved_overlap_follows_the_shift() {
