@@ -11,7 +11,7 @@
 //! sample, run, judge), `iterate` (the loop on one screen: associate, weight,
 //! fit, converged), `robust` (roughness filter, Tukey weights), [`associate`]
 //! (exact grid NN matches, parallel over blocks), `compare` (the starts'
-//! places re-scored on the samples they share), `choice` (the best of the
+//! places re-scored on the same samples at the same scale), `choice` (the best of the
 //! starts' results; an ambiguous pair's spread joins its covariance), `restart`
 //! and `backward` (two checks of the answer whose gaps beyond the noise join
 //! its covariance).
@@ -85,7 +85,7 @@ pub fn register<R: Pyramid, M: Pyramid>(
     if tried.is_empty() {
         return Err(first_error.unwrap_or(IcpError::EmptyOverlap));
     }
-    compare::on_shared_samples(reference, moving, &mut tried)?;
+    compare::on_common_samples(reference, moving, &mut tried)?;
     let forward = choose(tried, starts.ambiguity, starts.pixel_m);
     let limits = (starts.pixel_m, starts.radius_m);
     let forward = restart::check_restarts(reference, moving, config, forward, limits);
