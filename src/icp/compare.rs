@@ -40,12 +40,15 @@ const MIN_SAMPLES: usize = 64;
 const MAX_SIDE_PX: f64 = 1024.0;
 
 /// Replaces the costs of the converged or held results in `tried` (two or
-/// more) by their truncated-quadratic cost over all their places' samples
-/// (module docs). Leaves them as they are when there are too few samples.
+/// more, in the order of their own costs) by their truncated-quadratic cost
+/// over all their places' samples (module docs), the best of the results
+/// within `pixel_m` of each other for each. Leaves them as they are when
+/// there are too few samples.
 pub(super) fn on_common_samples<R: Pyramid, M: Pyramid>(
     reference: &R,
     moving: &M,
     tried: &mut [(IcpResult, f64)],
+    pixel_m: f64,
 ) -> Result<(), IcpError> {
     let read = IcpError::Read;
     let eligible: Vec<usize> = (0..tried.len())
@@ -107,27 +110,42 @@ pub(super) fn on_common_samples<R: Pyramid, M: Pyramid>(
         return Ok(());
     }
     let bound = (3.0 * smallest).max(1e-3);
-    for (&k, dev) in eligible.iter().zip(&deviations) {
-        let sum_sq: f64 = (landed.iter())
-            .map(|&i| {
-                if dev[i].is_finite() {
-                    dev[i].min(bound)
-                } else {
-                    bound
-                }
-            })
-            .map(|r| r * r)
-            .sum();
-        let cost = (sum_sq / landed.len() as f64).sqrt();
+    let costs: Vec<f64> = (deviations.iter())
+        .map(|dev| {
+            let sum_sq: f64 = (landed.iter())
+                .map(|&i| {
+                    if dev[i].is_finite() {
+                        dev[i].min(bound)
+                    } else {
+                        bound
+                    }
+                })
+                .map(|r| r * r)
+                .sum();
+            (sum_sq / landed.len() as f64).sqrt()
+        })
+        .collect();
+    // Results at one place share its best cost: between them the own costs
+    // decide (`tried` is ordered by them, and the choice's sort is stable).
+    let shifts: Vec<Vector3<f64>> = eligible
+        .iter()
+        .map(|&k| shift_at_centre(&tried[k].0))
+        .collect();
+    for (a, &k) in eligible.iter().enumerate() {
+        let place = (0..eligible.len())
+            .filter(|&b| (shifts[a] - shifts[b]).amax() <= pixel_m)
+            .map(|b| costs[b])
+            .fold(f64::INFINITY, f64::min);
         tracing::debug!(
             own = tried[k].1,
-            common = cost,
+            common = costs[a],
+            place,
             bound,
             samples = landed.len(),
             level,
             "place compared"
         );
-        tried[k].1 = cost;
+        tried[k].1 = place;
     }
     Ok(())
 }
@@ -202,7 +220,8 @@ mod tests {
     /// came with the lower own cost. Where both places land, the reference
     /// has a building the moving DSM lacks, so on those samples alone the
     /// other place fits better; over the whole strip the truth explains more.
-    /// A result that did not converge keeps its cost.
+    /// A result that did not converge keeps its cost; two within a pixel of
+    /// each other are one place and share its best cost.
     #[test]
     fn places_are_paid_for_what_they_explain() {
         let reference = tile(0.0, 1, Some([72.0, 84.0, 20.0, 80.0]));
@@ -211,6 +230,7 @@ mod tests {
             place(0.0, IcpStatus::Converged, 0.5),
             place(12.0, IcpStatus::Converged, 0.3),
             place(5.0, IcpStatus::Diverged, 0.1),
+            place(0.4, IcpStatus::Converged, 0.45),
         ];
         // on the samples both places land, the other place fits better
         let mut mov = moving.open_level(0).unwrap();
@@ -222,13 +242,14 @@ mod tests {
         let (truth, other) = (on_shared(0.0), on_shared(12.0));
         assert!(other < truth, "{truth} {other}");
 
-        on_common_samples(&reference, &moving, &mut tried).unwrap();
+        on_common_samples(&reference, &moving, &mut tried, 1.0).unwrap();
         let (truth, other) = (tried[0].1, tried[1].1);
         assert!(
             truth < 0.8 * other,
             "the truth explains more: {truth} {other}"
         );
         assert_eq!(tried[2].1, 0.1, "not compared");
+        assert_eq!(tried[3].1, truth, "one place, one cost");
     }
 
     /// A single converged result is not compared.
@@ -239,7 +260,7 @@ mod tests {
             place(12.0, IcpStatus::Converged, 0.3),
             place(0.0, IcpStatus::MaxIterations, 0.2),
         ];
-        on_common_samples(&reference, &moving, &mut one).unwrap();
+        on_common_samples(&reference, &moving, &mut one, 1.0).unwrap();
         assert_eq!((one[0].1, one[1].1), (0.3, 0.2));
     }
 }

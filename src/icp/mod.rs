@@ -85,7 +85,8 @@ pub fn register<R: Pyramid, M: Pyramid>(
     if tried.is_empty() {
         return Err(first_error.unwrap_or(IcpError::EmptyOverlap));
     }
-    compare::on_common_samples(reference, moving, &mut tried)?;
+    tried.sort_by(|a, b| a.1.total_cmp(&b.1));
+    compare::on_common_samples(reference, moving, &mut tried, starts.pixel_m)?;
     let forward = choose(tried, starts.ambiguity, starts.pixel_m);
     let limits = (starts.pixel_m, starts.radius_m);
     let forward = restart::check_restarts(reference, moving, config, forward, limits);
