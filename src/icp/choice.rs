@@ -18,43 +18,45 @@ use nalgebra::{Matrix6, Point3, Vector3};
 use super::backward::{inflate, Disagreement};
 use super::{IcpResult, IcpStatus, AMBIGUOUS_COST_RATIO};
 
-/// The best of the results from several starts: usable before not, then the
-/// lowest robust cost. With several, the ambiguity becomes the ratio of the
-/// two best costs among results at different places, and a ratio above
-/// [`AMBIGUOUS_COST_RATIO`] makes the pair `Ambiguous`, with the spread of
-/// the places that fit nearly as well added to its covariance ([`spread`]).
+/// The best of the results from several starts (result, choice cost, own
+/// cost): usable before not, then the lowest choice cost (the samples the
+/// places share, `compare`; else the own cost). With several, the ambiguity
+/// becomes the ratio of the two best choice costs among results at different
+/// places, or of the own costs where another place's is nearly as low or
+/// lower; a ratio above [`AMBIGUOUS_COST_RATIO`] makes the pair `Ambiguous`,
+/// with the spread of the places that fit nearly as well by either cost
+/// added to its covariance ([`spread`]).
 pub(super) fn choose(
-    mut tried: Vec<(IcpResult, f64)>,
+    mut tried: Vec<(IcpResult, f64, f64)>,
     ambiguity: Option<f64>,
     pixel_m: f64,
 ) -> IcpResult {
-    let rank = |r: &(IcpResult, f64)| (!r.0.status.is_converged_or_held(), r.1);
+    let rank = |r: &(IcpResult, f64, f64)| (!r.0.status.is_converged_or_held(), r.1);
     tried.sort_by(|a, b| {
         let (ka, kb) = (rank(a), rank(b));
         ka.0.cmp(&kb.0).then(ka.1.total_cmp(&kb.1))
     });
     let several = tried.len() > 1;
     let mut tried = tried.into_iter();
-    let (mut best, best_cost) = tried.next().expect("at least one start");
+    let (mut best, best_cost, best_own) = tried.next().expect("at least one start");
     best.ambiguity = ambiguity;
     if !several {
         return best;
     }
-    let others: Vec<(IcpResult, f64)> = tried.collect();
-    let elsewhere = others
-        .iter()
-        .find(|(r, _)| r.status.is_converged_or_held() && differs(&best, r, pixel_m));
-    best.ambiguity = Some(match elsewhere {
-        Some((_, cost)) if *cost > 0.0 => (best_cost / cost).min(1.0),
-        _ => 0.0,
-    });
+    // how nearly another usable place fits as well, by either cost (1: as well or better)
+    let closeness = |cost: f64, own: f64| {
+        let ratio = |a: f64, b: f64| if b > 0.0 { (a / b).min(1.0) } else { 0.0 };
+        ratio(best_cost, cost).max(ratio(best_own, own))
+    };
+    let elsewhere: Vec<(IcpResult, f64)> = tried
+        .filter(|(r, _, _)| r.status.is_converged_or_held() && differs(&best, r, pixel_m))
+        .map(|(r, cost, own)| (r, closeness(cost, own)))
+        .collect();
+    best.ambiguity = Some(elsewhere.iter().map(|e| e.1).fold(0.0, f64::max));
     if best.status.is_converged_or_held() && best.ambiguity.unwrap_or(0.0) > AMBIGUOUS_COST_RATIO {
         best.status = IcpStatus::Ambiguous;
-        let rivals: Vec<&IcpResult> = others
-            .iter()
-            .filter(|(r, cost)| {
-                r.status.is_converged_or_held() && best_cost / cost > AMBIGUOUS_COST_RATIO
-            })
+        let rivals: Vec<&IcpResult> = (elsewhere.iter())
+            .filter(|(_, near)| *near > AMBIGUOUS_COST_RATIO)
             .map(|(r, _)| r)
             .collect();
         if let Some(extra) = spread(&best, &rivals) {
@@ -121,7 +123,11 @@ mod tests {
     /// z keep their own sigmas. A clear winner keeps its covariance.
     #[test]
     fn an_ambiguous_pair_carries_the_spread_of_its_places() {
-        let chosen = choose(vec![(at(4.0), 0.30), (at(0.0), 0.29)], Some(0.95), 0.5);
+        let chosen = choose(
+            vec![(at(4.0), 0.30, 0.30), (at(0.0), 0.29, 0.29)],
+            Some(0.95),
+            0.5,
+        );
         assert_eq!(chosen.status, IcpStatus::Ambiguous);
         assert!(
             (chosen.t_ref_moving.translation.x - 0.0).abs() < 1e-12,
@@ -133,11 +139,29 @@ mod tests {
         assert!((sigma[1].unwrap() - 0.05).abs() < 1e-9, "{sigma:?}");
         assert!((sigma[2].unwrap() - 0.01).abs() < 1e-9, "{sigma:?}");
 
-        let clear = choose(vec![(at(4.0), 0.60), (at(0.0), 0.29)], Some(0.5), 0.5);
+        let clear = choose(
+            vec![(at(4.0), 0.60, 0.60), (at(0.0), 0.29, 0.29)],
+            Some(0.5),
+            0.5,
+        );
         assert_eq!(clear.status, IcpStatus::Converged);
         assert_eq!(clear.information.as_ref().unwrap().sigma[0], Some(0.05));
+        // a place the shared samples rank clearly worse but whose own fit is
+        // as good is a rival: the two costs disagree, the pair is ambiguous
+        let disagree = choose(
+            vec![(at(4.0), 0.60, 0.28), (at(0.0), 0.29, 0.31)],
+            Some(0.5),
+            0.5,
+        );
+        assert_eq!(disagree.status, IcpStatus::Ambiguous);
+        assert_eq!(disagree.t_ref_moving.translation.x, 0.0);
+        assert!(disagree.information.as_ref().unwrap().sigma[0].unwrap() > 2.0);
         // the same place twice is not ambiguous
-        let same = choose(vec![(at(0.1), 0.30), (at(0.0), 0.29)], Some(0.95), 0.5);
+        let same = choose(
+            vec![(at(0.1), 0.30, 0.30), (at(0.0), 0.29, 0.29)],
+            Some(0.95),
+            0.5,
+        );
         assert_eq!(same.status, IcpStatus::Converged);
     }
 }

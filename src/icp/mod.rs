@@ -11,7 +11,7 @@
 //! sample, run, judge), `iterate` (the loop on one screen: associate, weight,
 //! fit, converged), `robust` (roughness filter, Tukey weights), [`associate`]
 //! (exact grid NN matches, parallel over blocks), `compare` (the starts'
-//! places re-scored on the same samples at the same scale), `choice` (the best of the
+//! places re-scored on the samples they share), `choice` (the best of the
 //! starts' results; an ambiguous pair's spread joins its covariance), `restart`
 //! and `backward` (two checks of the answer whose gaps beyond the noise join
 //! its covariance).
@@ -85,8 +85,11 @@ pub fn register<R: Pyramid, M: Pyramid>(
     if tried.is_empty() {
         return Err(first_error.unwrap_or(IcpError::EmptyOverlap));
     }
-    tried.sort_by(|a, b| a.1.total_cmp(&b.1));
-    compare::on_common_samples(reference, moving, &mut tried, starts.pixel_m)?;
+    // choice cost, own cost; ordered by the own cost, which decides between
+    // results at one place (the choice's sort is stable)
+    let mut tried: Vec<(IcpResult, f64, f64)> = tried.into_iter().map(|(r, c)| (r, c, c)).collect();
+    tried.sort_by(|a, b| a.2.total_cmp(&b.2));
+    compare::on_shared_samples(reference, moving, &mut tried, starts.pixel_m)?;
     let forward = choose(tried, starts.ambiguity, starts.pixel_m);
     let limits = (starts.pixel_m, starts.radius_m);
     let forward = restart::check_restarts(reference, moving, config, forward, limits);
