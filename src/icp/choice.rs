@@ -1,8 +1,10 @@
 //! The best of the starts' results, and what the others say about it.
 //!
 //! When the global search is ambiguous, the ladder runs from each of its best
-//! few peaks. The lowest robust cost wins; results at other places whose cost
-//! is within [`AMBIGUOUS_COST_RATIO`] of it make the pair `Ambiguous`. The
+//! few peaks (and from the georeferenced position). The place the samples all
+//! places share rank first wins (`compare`; else the lowest own robust cost);
+//! results at other places within [`AMBIGUOUS_COST_RATIO`] of it by either
+//! score make the pair `Ambiguous`. The
 //! winner's sandwich covariance is the curvature of its own basin only: on
 //! featureless ground (sparse stereo, fields) nearly equal basins lie metres
 //! apart and the winner is a coin toss among them: tile_264 -> tile_265 of
