@@ -62,9 +62,12 @@ pub(super) fn on_shared_samples<R: Pyramid, M: Pyramid>(
     if eligible.len() < 2 {
         return Ok(());
     }
+    let shifts: Vec<Vector3<f64>> = (eligible.iter())
+        .map(|&k| shift_at_centre(&tried[k].0))
+        .collect();
     let mut shared: Option<Bounds> = None;
-    for &k in &eligible {
-        let Some(landed) = moved_overlap(reference, moving, &shift_at_centre(&tried[k].0))? else {
+    for shift in &shifts {
+        let Some(landed) = moved_overlap(reference, moving, shift)? else {
             return Ok(());
         };
         shared = match shared {
@@ -110,9 +113,6 @@ pub(super) fn on_shared_samples<R: Pyramid, M: Pyramid>(
             score_residuals(&mut residuals, MIN_SHARED).cost_m
         })
         .collect();
-    let shifts: Vec<Vector3<f64>> = (eligible.iter())
-        .map(|&k| shift_at_centre(&tried[k].0))
-        .collect();
     for (a, &k) in eligible.iter().enumerate() {
         let place = (0..eligible.len())
             .filter(|&b| (shifts[a] - shifts[b]).amax() <= pixel_m)
@@ -132,7 +132,7 @@ pub(super) fn on_shared_samples<R: Pyramid, M: Pyramid>(
 }
 
 /// Where a result moves the centre of its fit, metres (moving -> reference).
-fn shift_at_centre(r: &IcpResult) -> Vector3<f64> {
+pub(super) fn shift_at_centre(r: &IcpResult) -> Vector3<f64> {
     let c = Point3::from(Vector3::from(r.centre_m));
     r.t_ref_moving.transform_point(&c) - c
 }

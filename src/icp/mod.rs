@@ -32,7 +32,7 @@ mod robust;
 pub mod sample;
 pub mod start;
 
-use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
 pub use config::{IcpConfig, Metric};
 pub use result::{
@@ -72,8 +72,7 @@ pub fn register<R: Pyramid, M: Pyramid>(
     for start in &starts.starts {
         match from_start(reference, moving, config, &starts, start) {
             Ok(r) => {
-                let c = Point3::from(Vector3::from(r.0.centre_m));
-                let ended = r.0.t_ref_moving.transform_point(&c) - c;
+                let ended = compare::shift_at_centre(&r.0);
                 tracing::debug!(start = ?start.shift_m, ?ended, cost = r.1, status = ?r.0.status, inliers = r.0.inliers, samples = r.0.samples, overlap = r.0.overlap, "start result");
                 tried.push(r)
             }
