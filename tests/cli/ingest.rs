@@ -144,6 +144,27 @@ fn geographic_srtm_is_refused_with_exit_2() {
     assert!(!store.exists(), "nothing written for a refused input");
 }
 
+/// A lidar file handed to ingest (the usual mistake) is named for what it is.
+#[test]
+fn a_point_cloud_is_refused_with_what_to_do() {
+    let tmp = tempfile::tempdir().unwrap();
+    let laz = tmp.path().join("epoch.laz");
+    let mut header = b"LASF".to_vec();
+    header.resize(375, 0);
+    std::fs::write(&laz, header).unwrap();
+    let store = tmp.path().join("c.zarr");
+    let out = ingest(&[&laz], &store, &[]);
+    assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
+    let err = text(&out.stderr);
+    assert!(err.contains("epoch.laz"), "{err}");
+    assert!(
+        err.contains("a LAS/LAZ point cloud: grid it into a DSM GeoTIFF first"),
+        "{err}"
+    );
+    assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
+    assert!(!store.exists(), "nothing written for a refused input");
+}
+
 #[test]
 fn failed_ingest_leaves_the_store_untouched() {
     let tmp = tempfile::tempdir().unwrap();

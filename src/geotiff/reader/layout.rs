@@ -64,9 +64,16 @@ pub(super) fn check_magic(path: &Path, head: &[u8]) -> Result<(), GeoTiffError> 
         .iter()
         .map(|&b| if b.is_ascii_graphic() { b as char } else { '.' })
         .collect();
+    let detail = if &head[..4] == b"LASF" {
+        // the most common mistake: a lidar file where a DSM was meant
+        "a LAS/LAZ point cloud: grid it into a DSM GeoTIFF first, e.g. with PDAL's writers.gdal"
+            .to_string()
+    } else {
+        format!("starts with {shown:?}")
+    };
     Err(GeoTiffError::NotTiff {
         path: path.to_path_buf(),
-        detail: format!("starts with {shown:?}"),
+        detail,
     })
 }
 
