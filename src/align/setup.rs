@@ -10,7 +10,7 @@ use crate::geo::Bounds;
 use crate::journal::{DsmIds, Journal, JournalError, OutputLock};
 use crate::pipeline::{PairOutcome, PairTask};
 use crate::plan::{candidate_pairs, Footprint};
-use crate::store::Store;
+use crate::store::{DsmMeta, Store};
 
 /// What `align` will do: the pairs to register and the DSM kept fixed.
 #[derive(Clone, Debug)]
@@ -62,16 +62,40 @@ pub fn plan(store: &Store, config: &AlignConfig) -> Result<AlignPlan, AlignError
             }
         })
         .collect();
-    let tasks: Vec<PairTask> = candidate_pairs(&footprints)
-        .into_iter()
-        .map(|(reference, moving)| PairTask { reference, moving })
+    let candidates = candidate_pairs(&footprints);
+    let min_px = config.pipeline.min_overlap_px;
+    let tasks: Vec<PairTask> = candidates
+        .iter()
+        .filter(|&&(i, j)| shared_pixels(&footprints, dsms, i, j) >= min_px as f64)
+        .map(|&(reference, moving)| PairTask { reference, moving })
         .collect();
-    if tasks.is_empty() {
+    if candidates.is_empty() {
         return Err(AlignError::Input(format!(
             "{root}: no two DSM footprints overlap"
         )));
     }
+    if tasks.is_empty() {
+        return Err(AlignError::Input(format!(
+            "{root}: no two DSM footprints share --min-overlap-px {min_px} pixels"
+        )));
+    }
+    if tasks.len() < candidates.len() {
+        tracing::info!(
+            skipped = candidates.len() - tasks.len(),
+            min_overlap_px = min_px,
+            "overlapping footprints too small to register"
+        );
+    }
     Ok(AlignPlan { tasks, anchor })
+}
+
+/// Pixels of the coarser of DSMs `i` and `j` in their footprints' intersection.
+fn shared_pixels(footprints: &[Footprint], dsms: &[DsmMeta], i: usize, j: usize) -> f64 {
+    let Some(shared) = footprints[i].bounds.intersection(&footprints[j].bounds) else {
+        return 0.0;
+    };
+    let pixel = dsms[i].gsd_m().max(dsms[j].gsd_m());
+    shared.width() * shared.height() / (pixel * pixel)
 }
 
 /// `--out` must name a file in an existing folder: refused before any work.
@@ -119,7 +143,7 @@ pub fn open_journal(
         .map_err(|e| match e {
             JournalError::Mismatch { path, .. } => AlignError::Input(format!(
                 "{path}: the journal of an earlier run used other ICP settings, \
-                 --min-overlap, --mask or --initial; run again with those to reuse its pairs, \
+                 --min-overlap(-px), --mask or --initial; run again with those to reuse its pairs, \
                  or add --fresh to start over"
             )),
             e => e.into(),
@@ -138,10 +162,15 @@ pub const REGISTRATION_VERSION: u32 = 2;
 /// The settings a journal's header records: a journal is reused (or, sharded,
 /// merged) only by a run with the same ones. A mask and initial poses are
 /// recorded by their content's hash, and only when given (so journals of runs
-/// without them keep their settings).
+/// without them keep their settings); `--min-overlap-px` only when not 0 (a
+/// journal of a version without it resumes with `--min-overlap-px 0`).
 pub fn journal_settings(config: &AlignConfig) -> String {
+    let min_px = match config.pipeline.min_overlap_px {
+        0 => String::new(),
+        px => format!(" min_overlap_px={px}"),
+    };
     format!(
-        "{:?} min_overlap={} registration={REGISTRATION_VERSION}{}",
+        "{:?} min_overlap={}{min_px} registration={REGISTRATION_VERSION}{}",
         config.pipeline.icp,
         config.pipeline.min_overlap,
         config.pipeline.inputs.settings()
@@ -168,6 +197,7 @@ mod tests {
                 threads: 1,
                 icp: IcpConfig::default(),
                 min_overlap: 0.1,
+                min_overlap_px: 0,
                 inputs,
             },
             graph: GraphKind::Full,
@@ -177,6 +207,19 @@ mod tests {
             output: "poses.json".into(),
             sharding: Default::default(),
         }
+    }
+
+    #[test]
+    fn the_settings_name_min_overlap_px_only_when_not_0() {
+        let plain = journal_settings(&config(PairInputs::default()));
+        assert!(!plain.contains("min_overlap_px"), "{plain}");
+        let mut c = config(PairInputs::default());
+        c.pipeline.min_overlap_px = 2500;
+        let given = journal_settings(&c);
+        assert!(
+            given.contains("min_overlap=0.1 min_overlap_px=2500 "),
+            "{given}"
+        );
     }
 
     #[test]

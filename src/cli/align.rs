@@ -52,8 +52,12 @@ pub struct Args {
     #[arg(long, value_enum, default_value = "information")]
     pub weights: WeightsArg,
     /// Pairs whose overlap score s_ij is below this give no edge.
-    #[arg(long, default_value_t = 0.1)]
+    #[arg(long, default_value_t = dsmstream::pipeline::DEFAULT_MIN_OVERLAP)]
     pub min_overlap: f64,
+    /// Pairs whose footprints share fewer pixels (of the coarser DSM) are not
+    /// registered: too small to tell a wrong place from the right one.
+    #[arg(long, default_value_t = dsmstream::pipeline::DEFAULT_MIN_OVERLAP_PX)]
+    pub min_overlap_px: u64,
     /// Keep this DSM fixed (identity pose) instead of the mean gauge.
     #[arg(long)]
     pub anchor: Option<String>,
@@ -97,6 +101,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             threads: memory.threads,
             icp: args.icp.to_config()?,
             min_overlap: args.min_overlap,
+            min_overlap_px: args.min_overlap_px,
             inputs,
         },
         graph: match args.graph {

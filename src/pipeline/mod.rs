@@ -31,6 +31,20 @@ use crate::journal::{Journal, JournalError};
 use crate::store::Store;
 use crate::view::PairInputs;
 
+/// The default `--min-overlap`: pairs whose overlap score s_ij is below it
+/// give no edge. 0.05 keeps the corners of a grid of tiles overlapping by 30 %
+/// (s_ij about 0.09): on the 20 x 20 grids of 128 m tiles their loops took the
+/// worst DSM from 0.26 to 0.17 m (docs/measurements.md, "Corner pairs"); a
+/// corner too small to measure anything says so in its own status.
+pub const DEFAULT_MIN_OVERLAP: f64 = 0.05;
+
+/// The default `--min-overlap-px`: pairs whose footprints share fewer pixels
+/// (of the coarser DSM) are not planned. 50 x 50 pixels: the corners of a
+/// grid of 64 m tiles at 0.5 m (38 x 38 px) fitted wrong places at
+/// centimetre sigmas often enough to spoil the grid, those of 128 m tiles
+/// (76 x 76 px) tie it together (docs/measurements.md, "Corner pairs").
+pub const DEFAULT_MIN_OVERLAP_PX: u64 = 2500;
+
 /// Settings of one pipeline run.
 #[derive(Clone, Debug)]
 pub struct PipelineConfig {
@@ -39,6 +53,9 @@ pub struct PipelineConfig {
     pub icp: IcpConfig,
     /// Pairs scoring below this s_ij give no edge.
     pub min_overlap: f64,
+    /// Pairs whose footprints share fewer pixels of the coarser DSM are not
+    /// planned (see [`DEFAULT_MIN_OVERLAP_PX`]).
+    pub min_overlap_px: u64,
     /// Stable-terrain mask and initial shifts seen by every pair.
     pub inputs: PairInputs,
 }

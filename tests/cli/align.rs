@@ -77,6 +77,50 @@ fn stderr(out: &std::process::Output) -> String {
     String::from_utf8_lossy(&out.stderr).into_owned()
 }
 
+/// Journal records of a run: (pairs, pairs scored below --min-overlap).
+fn journaled(poses: &Path) -> (usize, usize) {
+    let journal = std::fs::read_to_string(poses.with_extension("json.journal")).unwrap();
+    let records: Vec<&str> = journal.lines().skip(1).collect();
+    let below = records
+        .iter()
+        .filter(|l| l.contains("below --min-overlap"))
+        .count();
+    (records.len(), below)
+}
+
+/// A 2 x 2 grid of 128 m tiles overlapping by 30 %: four strips and two
+/// corners (38 x 38 m, 76 x 76 px, s_ij about 0.09). The corners are
+/// registered at the defaults, scored out by `--min-overlap 0.1`, and not
+/// planned under a `--min-overlap-px` above their pixels.
+#[test]
+fn corner_pairs_follow_min_overlap_and_min_overlap_px() {
+    let dir = tempfile::tempdir().unwrap();
+    let tiles = dir.path().join("tiles");
+    let layout = ["--layout", "grid", "--rows", "2", "--cols", "2"];
+    let rest = ["--size", "256", "--overlap", "0.3", "--seed", "3"];
+    dsmgen_tiles(&[&layout[..], &rest[..]].concat(), &tiles);
+    let store = dir.path().join("c.zarr");
+    ingest(&[tiles], &store);
+    let poses = dir.path().join("p.json");
+    let runs: [(&[&str], (usize, usize)); 3] = [
+        (&[], (6, 0)),
+        (&["--min-overlap", "0.1", "--fresh"], (6, 2)),
+        (&["--min-overlap-px", "6500", "--fresh"], (4, 0)),
+    ];
+    for (flags, expected) in runs {
+        let out = align(&store, &poses, flags);
+        assert!(out.status.success(), "{flags:?}: {}", stderr(&out));
+        assert_eq!(journaled(&poses), expected, "{flags:?}");
+    }
+    let out = align(&store, &poses, &["--min-overlap-px", "100000", "--fresh"]);
+    assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("no two DSM footprints share --min-overlap-px 100000 pixels"),
+        "{}",
+        stderr(&out)
+    );
+}
+
 #[test]
 fn align_refuses_an_empty_store_and_no_pair_above_min_overlap() {
     let dir = tempfile::tempdir().unwrap();
