@@ -2,8 +2,8 @@
 //! targets: many narrow overlaps, weak pairs, three renderings and seeds per
 //! grid. Ignored (each collection takes 4-7 minutes on 2 cores); run with
 //! `cargo test --release --test cli -- --ignored grids`. The figures in each
-//! test's comment are docs/measurements.md's ("Ambiguous pairs carry their
-//! spread; seams measured").
+//! test's comment are docs/measurements.md's ("Corner pairs", 2026-12-05:
+//! the default `--min-overlap` 0.05 registers the grids' corner pairs too).
 
 use crate::util::{align_and_score, grid_tiles, ingest};
 
@@ -63,9 +63,10 @@ fn align_grid(rows: &str, size: &str, seed: &str, render: &str) -> Scored {
 
 /// 20 x 20 DSMs of 128 m (256 px) with 38 m overlaps: per DSM median
 /// <= 0.08 m, worst <= 0.25 m and 0.05 deg, every DSM within 3 of its sigmas,
-/// 99 % of pairs within 3 sigma on x, y and z. Measured 2026-12-05 (687fc02):
-/// seed 3 centre 0.0577 / 0.2234 m / 0.0430 deg, pairs >= 0.991; seed 5
-/// lidar-max 0.0523 / 0.2163 m / 0.0390 deg, pairs >= 0.999.
+/// 99 % of pairs within 3 sigma on x, y and z. Measured 2026-12-05 (with the
+/// corner pairs): seed 3 centre 0.0553 / 0.1719 m / 0.0428 deg, pairs >=
+/// 0.992; seed 5 lidar-max 0.0475 / 0.2243 m / 0.0382 deg, pairs >= 0.995
+/// (without them the centre grid's worst DSM was 0.2548 m).
 #[test]
 #[ignore]
 fn grids_of_400_dsms_of_128_m_meet_the_targets() {
@@ -79,26 +80,24 @@ fn grids_of_400_dsms_of_128_m_meet_the_targets() {
 }
 
 /// The sparse TIN rendering of the 20 x 20 grid (seed 7, 0.5 points per
-/// pixel): the median and worst shift targets hold, every DSM within 3 of its
-/// sigmas and 99 % of the pairs too. Its worst rotation is 0.0509 deg, above
-/// the 0.05 deg target by a thousandth of a degree (a fifth of that DSM's yaw
-/// sigma), so 0.06 here. Measured 2026-12-05 (687fc02): 0.0609 / 0.1983 m /
-/// 0.0509 deg, pairs >= 0.994 (before restarts went across: worst 0.4309 m /
-/// 0.0585 deg, two pairs 14 sigma off in their well-measured direction).
+/// pixel): the median, worst shift and rotation targets hold, every DSM
+/// within 3 of its sigmas and 99 % of the pairs too. Measured 2026-12-05
+/// (with the corner pairs): 0.0646 / 0.2155 m / 0.0492 deg, pairs >= 0.994
+/// (without them 0.0606 / 0.2075 m / 0.0511 deg).
 #[test]
 #[ignore]
-fn grids_of_400_sparse_tin_dsms_meet_the_shift_targets() {
+fn grids_of_400_sparse_tin_dsms_meet_the_targets() {
     let s = align_grid("20", "256", "7", "tin");
     assert!(s.median_m <= 0.08 && s.worst_m <= 0.25, "{}", s.what);
-    assert!(s.worst_deg < 0.06, "{}", s.what);
+    assert!(s.worst_deg <= 0.05, "{}", s.what);
     assert!(s.within_3_sigma == [1.0, 1.0], "{}", s.what);
     assert!(s.pairs_within_3_sigma >= 0.99, "{}", s.what);
 }
 
 /// 10 x 10 DSMs of 256 m (512 px) with 77 m overlaps: per DSM worst
 /// <= 0.10 m, every DSM within 3 of its sigmas, overlapping DSMs within
-/// 0.15 m of each other at every corner of their overlap (measured 0.0613 /
-/// 0.0425 / 0.0333 m, seams 0.120 / 0.057 / 0.047 m).
+/// 0.15 m of each other at every corner of their overlap (measured with the
+/// corner pairs 0.0587 / 0.0315 / 0.0284 m, seams 0.120 / 0.058 / 0.042 m).
 #[test]
 #[ignore]
 fn grids_of_100_dsms_of_256_m_meet_the_targets() {
