@@ -96,6 +96,8 @@ pub struct AlignOutcome {
     pub counts: EdgeCounts,
     /// Pairs taken from the journal of an earlier run instead of registered.
     pub reused_pairs: usize,
+    /// Overlapping pairs not planned: fewer than `--min-overlap-px` shared pixels.
+    pub too_small_pairs: usize,
     /// DSMs that no reliable, kept edge constrains: their poses are not learned.
     pub unconstrained: Vec<String>,
     _lock: OutputLock,
@@ -167,6 +169,7 @@ pub fn align(
         weights: scene.weights.clone(),
         counts: report::edge_counts(&scene, &solution),
         reused_pairs,
+        too_small_pairs: plan.too_small,
         unconstrained: report::unconstrained_ids(store, &solution),
         _lock: lock,
     })

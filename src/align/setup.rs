@@ -17,6 +17,8 @@ use crate::store::{DsmMeta, Store};
 pub struct AlignPlan {
     /// Candidate pairs (overlapping footprints) in Morton order.
     pub tasks: Vec<PairTask>,
+    /// Overlapping pairs left out for sharing fewer than `--min-overlap-px` pixels.
+    pub too_small: usize,
     /// Index of the DSM that stays fixed; None = mean gauge.
     pub anchor: Option<usize>,
 }
@@ -79,14 +81,12 @@ pub fn plan(store: &Store, config: &AlignConfig) -> Result<AlignPlan, AlignError
             "{root}: no two DSM footprints share --min-overlap-px {min_px} pixels"
         )));
     }
-    if tasks.len() < candidates.len() {
-        tracing::info!(
-            skipped = candidates.len() - tasks.len(),
-            min_overlap_px = min_px,
-            "overlapping footprints too small to register"
-        );
-    }
-    Ok(AlignPlan { tasks, anchor })
+    let too_small = candidates.len() - tasks.len();
+    Ok(AlignPlan {
+        tasks,
+        too_small,
+        anchor,
+    })
 }
 
 /// Pixels of the coarser of DSMs `i` and `j` in their footprints' intersection.

@@ -190,6 +190,12 @@ fn print_summary(
             dsmstream::journal::Journal::path_for(out).display()
         );
     }
+    if outcome.too_small_pairs > 0 {
+        warn_line(&format!(
+            "{} overlapping pairs share fewer than --min-overlap-px pixels: not registered",
+            outcome.too_small_pairs
+        ));
+    }
     for f in &outcome.failed_pairs {
         warn_line(&format!(
             "pair {}-{} ({}) gave no edge",

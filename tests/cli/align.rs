@@ -112,6 +112,21 @@ fn corner_pairs_follow_min_overlap_and_min_overlap_px() {
         assert!(out.status.success(), "{flags:?}: {}", stderr(&out));
         assert_eq!(journaled(&poses), expected, "{flags:?}");
     }
+    // without -q the plan says what it left out
+    let told = bin()
+        .args(["align", "--min-overlap-px", "6500", "--fresh", "--out"])
+        .arg(&poses)
+        .arg(&store)
+        .output()
+        .unwrap();
+    assert!(told.status.success(), "{}", stderr(&told));
+    assert!(
+        stderr(&told).contains(
+            "warning: 2 overlapping pairs share fewer than --min-overlap-px pixels: not registered"
+        ),
+        "{}",
+        stderr(&told)
+    );
     let out = align(&store, &poses, &["--min-overlap-px", "100000", "--fresh"]);
     assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
     assert!(
