@@ -8,7 +8,10 @@
 #        CACHE_MB (256), THREADS (default: all cores), FUSE_GSD (fuse cell, default 4 m:
 #        a 10^4 mosaic at full resolution is a multi-GB file), EVAL_SAMPLES (10000),
 #        DSMGEN_FLAGS (extra `dsmgen tiles` flags, e.g. "--lakes 0": at 10^4 tiles
-#        of 128 px the default lakes leave a tile with no valid pixel, which ingest refuses).
+#        of 128 px the default lakes leave a tile with no valid pixel, which ingest refuses),
+#        ALIGN_FLAGS (default "--min-overlap 0.1 --min-overlap-px 0": the pairs of the
+#        README's table; small tiles stand in for DSMs here, and their strips are below
+#        the default --min-overlap-px).
 # Prints one Markdown row per stage.
 set -euo pipefail
 rows=$1; cols=$2; size=$3
@@ -18,6 +21,7 @@ CACHE_MB=${CACHE_MB:-256}
 THREADS=${THREADS:-$(nproc)}
 FUSE_GSD=${FUSE_GSD:-4}
 EVAL_SAMPLES=${EVAL_SAMPLES:-10000}
+ALIGN_FLAGS=${ALIGN_FLAGS:---min-overlap 0.1 --min-overlap-px 0}
 work=$BENCH_DIR/${rows}x${cols}x${size}
 mkdir -p "$work"
 wall() { awk -F': ' '/Elapsed \(wall clock\)/{n=split($2,a,":"); s=0; for(i=1;i<=n;i++) s=s*60+a[i]; print s}' "$1"; }
@@ -39,7 +43,7 @@ echo "| DSMs | stage | wall s | CPU s | peak RSS MB | load avg (1 min) |"
 echo "|---|---|---|---|---|---|"
 stage ingest "$BIN/dsmstream" ingest "$work/tiles" --store "$work/store.zarr" -q
 stage align "$BIN/dsmstream" align "$work/store.zarr" --out "$work/poses.json" \
-  --threads "$THREADS" --cache-mb "$CACHE_MB" -q
+  --threads "$THREADS" --cache-mb "$CACHE_MB" $ALIGN_FLAGS -q
 stage fuse "$BIN/dsmstream" fuse "$work/store.zarr" --poses "$work/poses.json" --gsd "$FUSE_GSD" \
   --out "$work/fused.tif" --threads "$THREADS" --cache-mb "$CACHE_MB" -q
 stage eval "$BIN/dsmstream" eval "$work/store.zarr" --poses "$work/poses.json" \
