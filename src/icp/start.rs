@@ -17,6 +17,9 @@ pub const MULTI_START_AMBIGUITY: f64 = 0.8;
 pub const MAX_STARTS: usize = 3;
 /// The automatic search radius is at least this many pixels.
 pub const MIN_AUTO_RADIUS_PX: f64 = 8.0;
+/// A place the whole radius finds beyond a cut radius joins the starts when
+/// its search cost is below this fraction of the best inside.
+pub const CLEARLY_BETTER: f64 = 0.9;
 
 /// One starting translation (p_ref = p_moving + shift_m) and the search's
 /// residual spread there.
@@ -61,40 +64,109 @@ pub fn find_starts<R: Pyramid, M: Pyramid>(
     }
     // The automatic radius stays within half the overlap: a search over a small
     // overlap's whole width finds chance fits at its edges.
-    let mut radius_m = config.search_radius_m(pixel_m);
+    let full_m = config.search_radius_m(pixel_m);
+    let mut radius_m = full_m;
     if !config.max_displacement_m.is_finite() {
         let half_side = 0.5 * nominal.width().min(nominal.height());
         radius_m = radius_m.min(half_side.max(MIN_AUTO_RADIUS_PX * pixel_m));
     }
-    let coarse = CoarseConfig {
-        max_displacement_m: radius_m,
-        ..CoarseConfig::default()
+    let Some(found) = search(reference, moving, radius_m)? else {
+        return Ok(Starts {
+            starts: vec![Start {
+                shift_m: Vector3::zeros(),
+                cost_m: f64::NAN,
+            }],
+            ambiguity: None,
+            radius_m,
+            pixel_m,
+        });
     };
-    let found = match estimate(reference, moving, &coarse) {
-        Ok(found) => found,
-        Err(CoarseError::NoOverlap(_)) => return Err(IcpError::NoOverlap),
-        Err(CoarseError::EmptyOverlap) => return Err(IcpError::EmptyOverlap),
-        Err(CoarseError::Read(e)) => return Err(IcpError::Read(e)),
-        Err(CoarseError::NoMatch(_)) => {
-            return Ok(Starts {
-                starts: vec![Start {
-                    shift_m: Vector3::zeros(),
-                    cost_m: f64::NAN,
-                }],
-                ambiguity: None,
-                radius_m,
-                pixel_m,
-            })
-        }
-    };
-    let starts = starts_from(&found, pixel_m);
+    let mut starts = starts_from(&found, pixel_m);
     tracing::debug!(shift = ?found.shift_m, ambiguity = found.ambiguity, level = found.level, candidates = ?found.candidates, "initial search");
+    // Best on the edge of a radius cut to half the overlap: the DSM may lie
+    // farther (a 20 m offset across a 19 m strip, where the strip's best
+    // place within 9.5 m was 12 m off with 0.1 m sigmas). The radius doubles,
+    // up to the automatic one, until the best place lies inside it; the
+    // places found on the way join the starts and the usual comparison
+    // decides (a near tie makes the pair ambiguous). One jump to the whole
+    // radius finds chance fits where the strip slides along itself instead.
+    let mut last = found.clone();
+    while radius_m < full_m && on_edge(reference, &last, radius_m)? {
+        radius_m = (2.0 * radius_m).min(full_m);
+        let Some(wider) = search(reference, moving, radius_m)? else {
+            break;
+        };
+        tracing::debug!(radius_m, shift = ?wider.shift_m, ambiguity = wider.ambiguity, level = wider.level, candidates = ?wider.candidates, "initial search widened");
+        for s in starts_from(&wider, pixel_m) {
+            let known =
+                (starts.iter()).any(|k| (k.shift_m - s.shift_m).xy().norm() <= 3.0 * pixel_m);
+            if !known {
+                starts.push(s);
+            }
+        }
+        last = wider;
+    }
+    // A chance fit inside the cut radius can also hide the DSM farther out
+    // (a 72 m offset across a 38 m strip: the best place within 19 m was
+    // 70 m off). The whole automatic radius is searched once more; a place
+    // outside the searched square joins the starts when it fits clearly
+    // better than the best inside (chance fits where a strip slides along
+    // itself fit about as well, not clearly better).
+    if radius_m < full_m {
+        if let Some(wide) = search(reference, moving, full_m)? {
+            let inside = starts[0].cost_m;
+            let outside = (starts_from(&wide, pixel_m).into_iter())
+                .filter(|s| s.shift_m.x.abs().max(s.shift_m.y.abs()) > radius_m)
+                .filter(|s| s.cost_m < CLEARLY_BETTER * inside)
+                .collect::<Vec<_>>();
+            tracing::debug!(shift = ?wide.shift_m, level = wide.level, candidates = ?wide.candidates, taken = outside.len(), "initial search over the whole radius");
+            if !outside.is_empty() {
+                starts.extend(outside);
+                radius_m = full_m;
+            }
+        }
+    }
     Ok(Starts {
         starts,
         ambiguity: Some(found.ambiguity),
         radius_m,
         pixel_m,
     })
+}
+
+/// The global search within `radius_m`; None when no shift keeps enough of
+/// the overlap (the caller starts from the georeferenced position).
+fn search<R: Pyramid, M: Pyramid>(
+    reference: &R,
+    moving: &M,
+    radius_m: f64,
+) -> Result<Option<CoarseEstimate>, IcpError> {
+    let coarse = CoarseConfig {
+        max_displacement_m: radius_m,
+        ..CoarseConfig::default()
+    };
+    match estimate(reference, moving, &coarse) {
+        Ok(found) => Ok(Some(found)),
+        Err(CoarseError::NoOverlap(_)) => Err(IcpError::NoOverlap),
+        Err(CoarseError::EmptyOverlap) => Err(IcpError::EmptyOverlap),
+        Err(CoarseError::Read(e)) => Err(IcpError::Read(e)),
+        Err(CoarseError::NoMatch(_)) => Ok(None),
+    }
+}
+
+/// Whether the search's best place lies within two pixels of its scan level
+/// from the edge of the searched square.
+fn on_edge<R: Pyramid>(
+    reference: &R,
+    found: &CoarseEstimate,
+    radius_m: f64,
+) -> Result<bool, IcpError> {
+    let scan_pixel_m = (reference.open_level(found.level))
+        .map_err(IcpError::Read)?
+        .geotransform()
+        .pixel_m();
+    let reach = found.shift_m.x.abs().max(found.shift_m.y.abs());
+    Ok(reach >= radius_m - 2.0 * scan_pixel_m)
 }
 
 /// The starts the search's candidates give: the best one when the search is
