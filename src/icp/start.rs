@@ -108,11 +108,12 @@ pub fn find_starts<R: Pyramid, M: Pyramid>(
     }
     // A chance fit inside the cut radius can also hide the DSM farther out
     // (a 72 m offset across a 38 m strip: the best place within 19 m was
-    // 70 m off). The whole automatic radius is searched once more; a place
+    // 70 m off, among places that fit nearly as well). When the search is
+    // ambiguous, the whole automatic radius is searched once more; a place
     // outside the searched square joins the starts when it fits clearly
     // better than the best inside (chance fits where a strip slides along
     // itself fit about as well, not clearly better).
-    if radius_m < full_m {
+    if radius_m < full_m && found.ambiguity > MULTI_START_AMBIGUITY {
         if let Some(wide) = search(reference, moving, full_m)? {
             let inside = starts[0].cost_m;
             let outside = (starts_from(&wide, pixel_m).into_iter())
@@ -317,5 +318,67 @@ mod tests {
         assert!(moved_overlap(&r, &m, &Vector3::new(60.0, 0.0, 0.0))
             .unwrap()
             .is_none());
+    }
+
+    /// Smooth bumps of varied height, one per 12 m cell at a place of its
+    /// own: no repeating pattern for a chance fit to lock onto.
+    fn bumps(x: f64, y: f64) -> f64 {
+        let (cx, cy) = ((x / 12.0).floor(), (y / 12.0).floor());
+        let mut h = 0.02 * x - 0.01 * y;
+        for i in -1..=1 {
+            for j in -1..=1 {
+                let (u, v) = (cx + i as f64, cy + j as f64);
+                let hash = |a: f64, b: f64| ((u * a + v * b).sin() * 43758.5453).fract().abs();
+                let (px, py) = (12.0 * (u + hash(12.9, 78.2)), 12.0 * (v + hash(39.3, 11.1)));
+                let d2 = (x - px).powi(2) + (y - py).powi(2);
+                h += (1.0 + 8.0 * hash(26.7, 4.9)) * (-d2 / 18.0).exp();
+            }
+        }
+        h
+    }
+
+    /// Two 200 x 200 px DSMs at 0.5 m whose footprints share a 20 m strip
+    /// (the automatic radius is cut to 10 m) and whose content needs `shift`
+    /// (p_ref = p_moving + shift): the moving one sees the reference's ground
+    /// `shift.x` metres west of where its footprint says.
+    fn strip_pair(shift: Vector3<f64>) -> (MemPyramid, MemPyramid) {
+        let make = |left: f64, t: Vector3<f64>| {
+            let gt = GeoTransform::north_up(left, 4_800_100.0, 0.5, 0.5);
+            MemGrid::from_fn(200, 200, gt, move |c, r| {
+                let (x, y) = gt.pixel_to_world(c as f64 + 0.5, r as f64 + 0.5);
+                (bumps(x + t.x, y + t.y) - t.z) as f32
+            })
+        };
+        (
+            MemPyramid::build(make(500_000.0, Vector3::zeros()), 64),
+            MemPyramid::build(make(500_080.0, shift), 64),
+        )
+    }
+
+    /// Offsets beyond half a narrow strip are found: on the edge of the cut
+    /// radius (14 m: the radius doubles) and beyond it with a chance fit
+    /// inside (25 m, 40 m: the whole radius finds a clearly better place).
+    /// Within the cut radius nothing changes (4 m).
+    #[test]
+    fn offsets_beyond_half_a_narrow_overlap_are_found() {
+        for dx in [-4.0, -14.0, -25.0, -40.0] {
+            let truth = Vector3::new(dx, 3.0, 0.4);
+            let (reference, moving) = strip_pair(truth);
+            let found = find_starts(&reference, &moving, &IcpConfig::default()).unwrap();
+            let near = (found.starts.iter()).any(|s| (s.shift_m - truth).xy().norm() < 1.5);
+            assert!(near, "{dx}: {:?}", places(&found.starts));
+            let config = IcpConfig {
+                model: crate::fit::Model::Translation,
+                ..IcpConfig::default()
+            };
+            let result = crate::icp::register(&reference, &moving, &config).unwrap();
+            let at = nalgebra::Point3::from(result.information.as_ref().unwrap().centroid);
+            let shift = result.t_ref_moving.transform_point(&at) - at;
+            assert!(
+                (shift - truth).norm() < 0.1 && result.status.is_converged_or_held(),
+                "{dx}: {shift:?} {:?}",
+                result.status
+            );
+        }
     }
 }
