@@ -17,9 +17,6 @@ pub const MULTI_START_AMBIGUITY: f64 = 0.8;
 pub const MAX_STARTS: usize = 3;
 /// The automatic search radius is at least this many pixels.
 pub const MIN_AUTO_RADIUS_PX: f64 = 8.0;
-/// A place the whole radius finds beyond a cut radius joins the starts when
-/// its search cost is below this fraction of the best inside.
-pub const CLEARLY_BETTER: f64 = 0.9;
 
 /// One starting translation (p_ref = p_moving + shift_m) and the search's
 /// residual spread there.
@@ -105,27 +102,6 @@ pub fn find_starts<R: Pyramid, M: Pyramid>(
             }
         }
         last = wider;
-    }
-    // A chance fit inside the cut radius can also hide the DSM farther out
-    // (a 72 m offset across a 38 m strip: the best place within 19 m was
-    // 70 m off, among places that fit nearly as well). When the search is
-    // ambiguous, the whole automatic radius is searched once more; a place
-    // outside the searched square joins the starts when it fits clearly
-    // better than the best inside (chance fits where a strip slides along
-    // itself fit about as well, not clearly better).
-    if radius_m < full_m && found.ambiguity > MULTI_START_AMBIGUITY {
-        if let Some(wide) = search(reference, moving, full_m)? {
-            let inside = starts[0].cost_m;
-            let outside = (starts_from(&wide, pixel_m).into_iter())
-                .filter(|s| s.shift_m.x.abs().max(s.shift_m.y.abs()) > radius_m)
-                .filter(|s| s.cost_m < CLEARLY_BETTER * inside)
-                .collect::<Vec<_>>();
-            tracing::debug!(shift = ?wide.shift_m, level = wide.level, candidates = ?wide.candidates, taken = outside.len(), "initial search over the whole radius");
-            if !outside.is_empty() {
-                starts.extend(outside);
-                radius_m = full_m;
-            }
-        }
     }
     Ok(Starts {
         starts,
@@ -355,13 +331,12 @@ mod tests {
         )
     }
 
-    /// Offsets beyond half a narrow strip are found: on the edge of the cut
-    /// radius (14 m: the radius doubles) and beyond it with a chance fit
-    /// inside (25 m, 40 m: the whole radius finds a clearly better place).
-    /// Within the cut radius nothing changes (4 m).
+    /// An offset beyond half a narrow strip is found when the best place
+    /// within the cut radius lies on its edge (14 m: the radius doubles);
+    /// within the cut radius nothing changes (4 m).
     #[test]
     fn offsets_beyond_half_a_narrow_overlap_are_found() {
-        for dx in [-4.0, -14.0, -25.0, -40.0] {
+        for dx in [-4.0, -14.0] {
             let truth = Vector3::new(dx, 3.0, 0.4);
             let (reference, moving) = strip_pair(truth);
             let found = find_starts(&reference, &moving, &IcpConfig::default()).unwrap();
