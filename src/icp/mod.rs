@@ -31,6 +31,8 @@ pub mod result;
 mod robust;
 pub mod sample;
 pub mod start;
+#[cfg(test)]
+mod testing;
 
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 

@@ -327,8 +327,7 @@ fn restart<R: Pyramid, M: Pyramid>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::geo::GeoTransform;
-    use crate::grid::{MemGrid, MemPyramid};
+    use crate::grid::MemPyramid;
 
     /// Gaps within the 0.999 quantile widen the sigmas once they exceed the
     /// noise (chi-square > 1) and a tenth of a pixel; micrometre scatter and
@@ -380,17 +379,7 @@ mod tests {
     /// A pair of 200 x 200 px DSMs at 0.5 m of `surface`, the moving one
     /// 60 m east and written so that `shift` registers it.
     fn pair(surface: fn(f64, f64) -> f64, shift: Vector3<f64>) -> (MemPyramid, MemPyramid) {
-        let make = |left: f64, t: Vector3<f64>| {
-            let gt = GeoTransform::north_up(left, 4_800_100.0, 0.5, 0.5);
-            MemGrid::from_fn(200, 200, gt, move |c, r| {
-                let (x, y) = gt.pixel_to_world(c as f64 + 0.5, r as f64 + 0.5);
-                (surface(x + t.x, y + t.y) - t.z) as f32
-            })
-        };
-        (
-            MemPyramid::build(make(500_000.0, Vector3::zeros()), 64),
-            MemPyramid::build(make(500_060.0, shift), 64),
-        )
+        crate::icp::testing::side_by_side(surface, 60.0, shift)
     }
 
     /// Relief in both directions: one minimum.

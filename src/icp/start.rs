@@ -318,17 +318,7 @@ mod tests {
     /// (p_ref = p_moving + shift): the moving one sees the reference's ground
     /// `shift.x` metres west of where its footprint says.
     fn strip_pair(shift: Vector3<f64>) -> (MemPyramid, MemPyramid) {
-        let make = |left: f64, t: Vector3<f64>| {
-            let gt = GeoTransform::north_up(left, 4_800_100.0, 0.5, 0.5);
-            MemGrid::from_fn(200, 200, gt, move |c, r| {
-                let (x, y) = gt.pixel_to_world(c as f64 + 0.5, r as f64 + 0.5);
-                (bumps(x + t.x, y + t.y) - t.z) as f32
-            })
-        };
-        (
-            MemPyramid::build(make(500_000.0, Vector3::zeros()), 64),
-            MemPyramid::build(make(500_080.0, shift), 64),
-        )
+        crate::icp::testing::side_by_side(bumps, 80.0, shift)
     }
 
     /// An offset beyond half a narrow strip is found when the best place
