@@ -86,8 +86,11 @@ pub fn find_starts<R: Pyramid, M: Pyramid>(
     // up to the automatic one, until the best place lies inside it; the
     // places found on the way join the starts and the usual comparison
     // decides (a near tie makes the pair ambiguous). One jump to the whole
-    // radius finds chance fits where the strip slides along itself instead.
-    let mut last = found.clone();
+    // radius found chance fits where the strip slid along itself, or, on 64 m
+    // tiles, 90 m away where the tiles meet another way (docs/measurements.md,
+    // "The search radius beyond half a narrow overlap").
+    let ambiguity = found.ambiguity;
+    let mut last = found;
     while radius_m < full_m && on_edge(reference, &last, radius_m)? {
         radius_m = (2.0 * radius_m).min(full_m);
         let Some(wider) = search(reference, moving, radius_m)? else {
@@ -105,7 +108,7 @@ pub fn find_starts<R: Pyramid, M: Pyramid>(
     }
     Ok(Starts {
         starts,
-        ambiguity: Some(found.ambiguity),
+        ambiguity: Some(ambiguity),
         radius_m,
         pixel_m,
     })
