@@ -7,12 +7,13 @@ changed pairs (largest change of the shift error first).
 Usage: pair_diff.py A.tsv B.tsv [N]   (N changed pairs listed, default 30)
 """
 import csv, sys
-AX = ['x', 'y', 'z', 'roll', 'pitch', 'yaw']
+from pair_battery import AXES as AX, number as f
+
+
 def load(p):
     return {(r['reference'], r['moving']): r for r in csv.DictReader(open(p), delimiter='\t')}
-def f(t):
-    try: return float(t)
-    except ValueError: return float('nan')
+
+
 def ratio(r):
     v = [abs(f(r['err_' + a])) / f(r['sigma_' + a]) for a in AX if f(r['sigma_' + a]) > 0]
     return max(v) if v else float('nan')
@@ -27,11 +28,12 @@ for name, d in (('A', a), ('B', b)):
     st = {}
     for r in d.values(): st[r['status']] = st.get(r['status'], 0) + 1
     print(name, st, f'converged beyond 3 sigma: {len(bad)}', 'all pairs within 3 sigma x/y/z: ' + ' / '.join(f'{within(x):.4f}' for x in 'xyz'))
+changed.sort(key=lambda k: -abs(err(a[k]) - err(b[k])))
 up = down = 0
-for k in sorted(changed, key=lambda k: -abs(err(a[k]) - err(b[k]))):
+for k in changed:
     ea, eb = err(a[k]), err(b[k])
     if eb < ea - 0.05: up += 1
     if eb > ea + 0.05: down += 1
 print(f'better by >5 cm: {up}, worse by >5 cm: {down}')
-for k in sorted(changed, key=lambda k: -abs(err(a[k]) - err(b[k])))[:int(sys.argv[3]) if len(sys.argv) > 3 else 30]:
+for k in changed[:int(sys.argv[3]) if len(sys.argv) > 3 else 30]:
     print(f'{k[0]}>{k[1]}  {a[k]["status"]:>11} e{err(a[k]):8.3f} r{ratio(a[k]):7.2f}  ->  {b[k]["status"]:>11} e{err(b[k]):8.3f} r{ratio(b[k]):7.2f}')
