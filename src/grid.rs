@@ -152,6 +152,11 @@ pub trait Pyramid: Sync {
         Self: 'a;
     fn num_levels(&self) -> usize;
     fn open_level(&self, level: usize) -> Result<Self::Level<'_>, GridError>;
+    /// The ring planes kept for `level` across runs, if this pyramid keeps
+    /// them ([`crate::nn::WithPlanes`]).
+    fn planes(&self, _level: usize) -> Option<&crate::nn::PlaneTable> {
+        None
+    }
 }
 
 /// A borrowed in-memory level.

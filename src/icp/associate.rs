@@ -13,8 +13,8 @@ use super::Metric;
 use crate::fit::Correspondence;
 use crate::grid::{Grid, GridError, Pyramid};
 use crate::nn::{
-    nearest, normal_at, surface_below_memo, within_below, NnStats, PixelFrame, PlaneMemo, Window,
-    NORMAL_RADIUS_PX,
+    nearest_or_within, normal_at, surface_below_memo, within_below, NnStats, PixelFrame, PlaneMemo,
+    Window, NORMAL_RADIUS_PX,
 };
 
 const BLOCK: usize = 4096;
@@ -24,6 +24,31 @@ const WINDOW_TILE_PX: i64 = 256;
 /// Fewer queries on a tile than this read the grid directly (a window of the
 /// search margin around one query costs more than it saves).
 const MIN_WINDOW_RUN: usize = 16;
+
+/// The nearest neighbour is searched this much beyond tau (a share of tau):
+/// a query found beyond tau may then move by its margin and stay beyond,
+/// with no search (spikes, voids, the parts of a sample that miss the
+/// reference are found again each iteration otherwise).
+const FAR_REACH: f64 = 0.5;
+
+/// What one query's matching keeps between calls on one level: its ring
+/// plane, and once its nearest neighbour proved beyond tau, how far it may
+/// move and stay so. The matches are those of matching afresh.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct QueryMemo {
+    plane: PlaneMemo,
+    far: Option<Far>,
+}
+
+/// A query whose nearest reference point, from `at`, was `clear_m` farther
+/// than `tau_m`: moved by less, it is still beyond (the distance to a set
+/// changes by at most the motion).
+#[derive(Clone, Copy, Debug)]
+struct Far {
+    at: Vector3<f64>,
+    tau_m: f64,
+    clear_m: f64,
+}
 
 /// Matches of one iteration.
 #[derive(Clone, Debug, Default)]
@@ -45,8 +70,7 @@ pub struct Association {
 /// once per iteration.
 pub fn block_order(points: &mut [Vector3<f64>], frame: &PixelFrame, block_px: i64) {
     points.sort_by_cached_key(|p| {
-        let (c, r) = frame.to_pixel(p);
-        let (c, r) = (c.floor() as i64, r.floor() as i64);
+        let (c, r) = frame.cell_of(p);
         (r.div_euclid(block_px), c.div_euclid(block_px), r, c)
     });
 }
@@ -88,7 +112,7 @@ impl<P: Pyramid> Matcher<'_, P> {
     pub fn associate(
         &self,
         points: &[Vector3<f64>],
-        memo: &mut [PlaneMemo],
+        memo: &mut [QueryMemo],
         t_ref_moving: &Isometry3<f64>,
     ) -> Result<Association, GridError> {
         associate(self, points, memo, t_ref_moving)
@@ -96,12 +120,12 @@ impl<P: Pyramid> Matcher<'_, P> {
 }
 
 /// Matches `points` (moving frame) mapped by `t_ref_moving`. `memo` holds one
-/// entry per point (point-to-surface reuses their ring planes between calls on
-/// the same level); it must have the length of `points`.
+/// entry per point, kept between calls on the same level ([`QueryMemo`]); it
+/// must have the length of `points`.
 pub fn associate<P: Pyramid>(
     matcher: &Matcher<'_, P>,
     points: &[Vector3<f64>],
-    memo: &mut [PlaneMemo],
+    memo: &mut [QueryMemo],
     t_ref_moving: &Isometry3<f64>,
 ) -> Result<Association, GridError> {
     assert_eq!(points.len(), memo.len(), "one plane memo per point");
@@ -159,7 +183,7 @@ struct Slots<'s> {
 fn match_block<P: Pyramid>(
     matcher: &Matcher<'_, P>,
     block: &[Vector3<f64>],
-    memo: &mut [PlaneMemo],
+    memo: &mut [QueryMemo],
     t_ref_moving: &Isometry3<f64>,
     slots: Slots<'_>,
 ) -> Result<(usize, NnStats), GridError> {
@@ -171,8 +195,7 @@ fn match_block<P: Pyramid>(
     let tiles: Vec<(i64, i64)> = queries
         .iter()
         .map(|q| {
-            let (c, r) = matcher.frame.to_pixel(q);
-            let (c, r) = (c.floor() as i64, r.floor() as i64);
+            let (c, r) = matcher.frame.cell_of(q);
             (r.div_euclid(WINDOW_TILE_PX), c.div_euclid(WINDOW_TILE_PX))
         })
         .collect();
@@ -194,8 +217,8 @@ fn match_block<P: Pyramid>(
         };
         for i in run.clone() {
             let q = &queries[i];
-            let (c, r) = matcher.frame.to_pixel(q);
-            if !grid.get(c.floor() as i64, r.floor() as i64).is_nan() {
+            let (c, r) = matcher.frame.cell_of(q);
+            if !grid.get(c, r).is_nan() {
                 below += 1;
             }
             let Some((corr, distance_m, cell)) =
@@ -233,33 +256,54 @@ fn pixel_box(frame: &PixelFrame, queries: &[Vector3<f64>]) -> (i64, i64, i64, i6
 /// The correspondence of one query `q` (reference frame, local): its exact
 /// NN within tau, then the reference point and normal of the metric; with the
 /// NN distance and the reference cell there.
-fn match_query<P, G: Grid>(
+fn match_query<P: Pyramid, G: Grid>(
     grid: &mut G,
     matcher: &Matcher<'_, P>,
     q: &Vector3<f64>,
-    memo: &mut PlaneMemo,
+    memo: &mut QueryMemo,
     nn: &mut NnStats,
 ) -> Option<(Correspondence, f64, Cell)> {
     let frame = &matcher.frame;
-    let bound = match (matcher.metric, matcher.distances) {
-        (Metric::PointToSurface, Distances::Bound) => {
-            within_below(grid, frame, q, matcher.tau_m, nn)
+    let tau_m = matcher.tau_m;
+    if let Some(far) = memo.far {
+        if far.tau_m == tau_m && (q - far.at).norm() < far.clear_m {
+            return None;
         }
-        _ => None,
+    }
+    let bounded = (matcher.metric, matcher.distances) == (Metric::PointToSurface, Distances::Bound);
+    let bound = if bounded {
+        within_below(grid, frame, q, tau_m, nn)
+    } else {
+        None
     };
     let (n, distance_m) = match bound {
         Some(d) => (None, d),
         None => {
-            let n = nearest(grid, frame, q, matcher.tau_m, nn)?;
-            if n.distance_m > matcher.tau_m {
-                return None;
+            // exact within tau as a search to tau would be: any point within
+            // tau lies inside that search's square
+            let reach_m = tau_m * (1.0 + FAR_REACH);
+            // a bound needs only whether a point lies within tau: the first
+            // one found settles it (its distance is at least the nearest's)
+            let enough_m = if bounded { tau_m } else { f64::NEG_INFINITY };
+            match nearest_or_within(grid, frame, q, reach_m, enough_m, nn) {
+                Some(n) if n.distance_m <= tau_m => (Some(n), n.distance_m),
+                n => {
+                    // points outside the searched square are beyond reach
+                    let nearest_m = n.map_or(reach_m, |n| n.distance_m.min(reach_m));
+                    memo.far = Some(Far {
+                        at: *q,
+                        tau_m,
+                        clear_m: nearest_m - tau_m,
+                    });
+                    return None;
+                }
             }
-            (Some(n), n.distance_m)
         }
     };
     let (reference, normal, cell, normal_var) = match (matcher.metric, n) {
         (Metric::PointToSurface, _) => {
-            let s = surface_below_memo(grid, frame, q, memo)?;
+            let table = matcher.reference.planes(matcher.level);
+            let s = surface_below_memo(grid, frame, q, &mut memo.plane, table)?;
             let cell = Cell {
                 roughness_m: s.roughness_m,
                 var_m2: s.cell_var_m2,
@@ -367,7 +411,7 @@ mod tests {
             metric: Metric::PointToSurface,
             distances,
         };
-        let memo = || vec![PlaneMemo::default(); points.len()];
+        let memo = || vec![QueryMemo::default(); points.len()];
         let exact = associate(&matcher(Distances::Exact), &points, &mut memo(), &t).unwrap();
         let bound = associate(&matcher(Distances::Bound), &points, &mut memo(), &t).unwrap();
         assert!(exact.corrs.len() > 10_000, "{}", exact.corrs.len());
@@ -393,7 +437,7 @@ mod tests {
                 &mut grid,
                 &m,
                 &q,
-                &mut PlaneMemo::default(),
+                &mut QueryMemo::default(),
                 &mut NnStats::default(),
             );
             let batched = exact.corrs.iter().position(|c| c.moving == q);

@@ -4,7 +4,7 @@
 
 use nalgebra::{Isometry3, Matrix6, UnitQuaternion, Vector3, Vector6};
 
-use super::associate::{block_order, Association, Distances, Matcher};
+use super::associate::{block_order, Association, Distances, Matcher, QueryMemo};
 use super::backward::inflate;
 use super::config::{LADDER_SAMPLES, PAPER_TAU_M};
 use super::final_rule;
@@ -17,7 +17,7 @@ use crate::fit::{fit_information_with, Correspondence, DegeneracyRule, FitInform
 use crate::geo::rigid::isometry_to_world;
 use crate::geo::Bounds;
 use crate::grid::{Grid, Pyramid};
-use crate::nn::{NnStats, PixelFrame, PlaneMemo};
+use crate::nn::{NnStats, PixelFrame};
 
 /// One level, sampled and ready to run.
 pub(super) struct Level<'a, R> {
@@ -121,7 +121,7 @@ impl<'a, R: Pyramid> Level<'a, R> {
             tolerance_m: config.tolerance_m * scale,
         };
         let mut nn = NnStats::default();
-        let mut full_memo = vec![PlaneMemo::default(); self.samples.len()];
+        let mut full_memo = vec![QueryMemo::default(); self.samples.len()];
         let (phase, iterations) = ladder(
             &matcher,
             &self.samples,
@@ -165,7 +165,7 @@ impl<'a, R: Pyramid> Level<'a, R> {
 fn ladder<R: Pyramid>(
     matcher: &Matcher<'_, R>,
     points: &[Vector3<f64>],
-    full_memo: &mut [PlaneMemo],
+    full_memo: &mut [QueryMemo],
     mut t_ref_moving: Isometry3<f64>,
     stop: &Convergence,
     (config, rules): (&IcpConfig, &Rules),
@@ -181,7 +181,7 @@ fn ladder<R: Pyramid>(
     let mut iterations = 0;
     if stride >= 2 {
         let subset: Vec<Vector3<f64>> = points.iter().step_by(stride).copied().collect();
-        let mut memo = vec![PlaneMemo::default(); subset.len()];
+        let mut memo = vec![QueryMemo::default(); subset.len()];
         let min_inliers = 30.max(subset.len() / 100);
         let phase = iterate(t_ref_moving, min_inliers, stop, config, rules, &mut |t| {
             match_at(matcher, &subset, &mut memo, t, nn)
@@ -211,7 +211,7 @@ fn ladder<R: Pyramid>(
 fn match_at<R: Pyramid>(
     matcher: &Matcher<'_, R>,
     points: &[Vector3<f64>],
-    memo: &mut [PlaneMemo],
+    memo: &mut [QueryMemo],
     t: &Isometry3<f64>,
     nn: &mut NnStats,
 ) -> Result<Association, IcpError> {

@@ -46,7 +46,9 @@ pub use result::{
 pub use crate::geo::rigid::to_rows as matrix_rows;
 
 use crate::fit::{DegeneracyRule, WallSnap};
+use crate::geo::Bounds;
 use crate::grid::{Grid, Pyramid};
+use crate::nn::{PlaneTable, WithPlanes, NORMAL_RADIUS_PX};
 use choice::choose;
 use iterate::Rules;
 use level::{start_level, Level};
@@ -69,6 +71,9 @@ pub fn register<R: Pyramid, M: Pyramid>(
     config: &IcpConfig,
 ) -> Result<IcpResult, IcpError> {
     let starts = find_starts(reference, moving, config)?;
+    // every run from here on matches against full-resolution ring planes
+    // of the same few pixels: each is fitted once
+    let reference = &WithPlanes::new(reference, 0, plane_table(reference, moving, &starts)?);
     let mut tried: Vec<(IcpResult, f64)> = Vec::new();
     let mut first_error = None;
     for start in &starts.starts {
@@ -101,6 +106,30 @@ pub fn register<R: Pyramid, M: Pyramid>(
         floor::apply(info, starts.pixel_m, config.sigma_floor_px);
     }
     Ok(result)
+}
+
+/// A table of the reference's full-resolution ring planes over the overlap
+/// as georeferenced, widened by the search radius (where the starts may move
+/// the DSM) and the plane window; None when that is too large to keep
+/// ([`crate::nn::planes::MAX_TABLE_PIXELS`]).
+fn plane_table<R: Pyramid, M: Pyramid>(
+    reference: &R,
+    moving: &M,
+    starts: &Starts,
+) -> Result<Option<PlaneTable>, IcpError> {
+    let Some(overlap) = moved_overlap(reference, moving, &Vector3::zeros())? else {
+        return Ok(None);
+    };
+    let grid = reference.open_level(0).map_err(IcpError::Read)?;
+    let margin_m = starts.radius_m + (NORMAL_RADIUS_PX + 2) as f64 * grid.geotransform().pixel_m();
+    let wide = Bounds {
+        min_x: overlap.min_x - margin_m,
+        min_y: overlap.min_y - margin_m,
+        max_x: overlap.max_x + margin_m,
+        max_y: overlap.max_y + margin_m,
+    };
+    Ok(sample::pixel_window(&grid, &wide)
+        .and_then(|[c0, r0, c1, r1]| PlaneTable::new(c0, r0, c1 - c0, r1 - r0)))
 }
 
 /// The forward answer reconciled with the backward check ([`backward`]):

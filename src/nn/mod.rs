@@ -13,17 +13,20 @@
 //!
 //! Files: [`frame`] (local metres <-> pixel lattice), [`search`] (the ring
 //! search), [`surface`] (the bilinear surface below a query and its tangent
-//! plane, grid normals), `plane` (the robust window plane fit both use), [`window`] (a block's
+//! plane, grid normals), `plane` (the robust window plane fit both use),
+//! [`planes`] (ring planes kept across a pair's runs), [`window`] (a block's
 //! share of the reference, copied once for its searches).
 
 pub mod frame;
 mod plane;
+pub mod planes;
 pub mod search;
 pub mod surface;
 pub mod window;
 
 pub use frame::PixelFrame;
-pub use search::{nearest, within_below, Neighbour, NnStats};
+pub use planes::{PlaneTable, WithPlanes};
+pub use search::{nearest, nearest_or_within, within_below, Neighbour, NnStats};
 pub use surface::{
     normal_at, surface_below, surface_below_memo, PlaneMemo, SurfacePoint, NORMAL_RADIUS_PX,
 };

@@ -3,6 +3,7 @@
 
 use nalgebra::Vector3;
 
+use super::frame::floor_i64;
 use super::PixelFrame;
 use crate::grid::Grid;
 
@@ -41,14 +42,29 @@ pub fn nearest<G: Grid + ?Sized>(
     max_radius_m: f64,
     stats: &mut NnStats,
 ) -> Option<Neighbour> {
+    nearest_or_within(grid, frame, query, max_radius_m, f64::NEG_INFINITY, stats)
+}
+
+/// [`nearest`], except that the search ends with the ring where a point
+/// within `enough_m` is found, returning the nearest point found so far: a
+/// point within `enough_m`, not always the nearest (for when only whether
+/// one lies that close matters). None, or a point farther than `enough_m`,
+/// as [`nearest`].
+pub fn nearest_or_within<G: Grid + ?Sized>(
+    grid: &mut G,
+    frame: &PixelFrame,
+    query: &Vector3<f64>,
+    max_radius_m: f64,
+    enough_m: f64,
+    stats: &mut NnStats,
+) -> Option<Neighbour> {
     stats.queries += 1;
     let (col_f, row_f) = frame.to_pixel(query);
     if !col_f.is_finite() || !row_f.is_finite() {
         stats.not_found += 1;
         return None;
     }
-    let c0 = col_f.floor() as i64;
-    let r0 = row_f.floor() as i64;
+    let (c0, r0) = (floor_i64(col_f), floor_i64(row_f));
     let gsd_min = frame.gsd_min_m();
     let max_ring = (max_radius_m / gsd_min).ceil() as i64 + 1;
     // The query lies within half a pixel of (c0, r0)'s centre on each axis, so
@@ -71,6 +87,9 @@ pub fn nearest<G: Grid + ?Sized>(
             stats.pixels_visited += 1;
             best.offer(grid, frame, query, max_radius_m, col, row);
         });
+        if enough_m >= 0.0 && best.d2 <= enough_m * enough_m {
+            break;
+        }
     }
     let best = best.neighbour;
     match best {
@@ -98,7 +117,7 @@ pub fn within_below<G: Grid + ?Sized>(
     if !(c.is_finite() && r.is_finite()) {
         return None;
     }
-    let (c, r) = (c.floor() as i64, r.floor() as i64);
+    let (c, r) = (floor_i64(c), floor_i64(r));
     let h = grid.get(c, r);
     if h.is_nan() {
         return None;

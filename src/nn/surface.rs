@@ -4,7 +4,9 @@
 
 use nalgebra::Vector3;
 
+use super::frame::floor_i64;
 use super::plane::{plane_fit, Plane};
+use super::planes::PlaneTable;
 use super::PixelFrame;
 use crate::grid::Grid;
 
@@ -43,7 +45,7 @@ pub fn surface_below<G: Grid + ?Sized>(
     frame: &PixelFrame,
     query: &Vector3<f64>,
 ) -> Option<SurfacePoint> {
-    surface_below_memo(grid, frame, query, &mut PlaneMemo::default())
+    surface_below_memo(grid, frame, query, &mut PlaneMemo::default(), None)
 }
 
 /// The ring plane last fitted for one query, reused while the query stays over
@@ -65,16 +67,18 @@ impl Default for PlaneMemo {
 }
 
 /// `surface_below`, reusing the ring plane kept in `memo` when the query is
-/// over the same pixel as last time (same result, fewer fits).
+/// over the same pixel as last time, else the one `table` keeps for that
+/// pixel of this grid (same result, fewer fits).
 pub fn surface_below_memo<G: Grid + ?Sized>(
     grid: &mut G,
     frame: &PixelFrame,
     query: &Vector3<f64>,
     memo: &mut PlaneMemo,
+    table: Option<&PlaneTable>,
 ) -> Option<SurfacePoint> {
     let (col_f, row_f) = frame.to_pixel(query);
     let (u, v) = (col_f - 0.5, row_f - 0.5);
-    let (c0, r0) = (u.floor() as i64, v.floor() as i64);
+    let (c0, r0) = (floor_i64(u), floor_i64(v));
     let (fx, fy) = (u - c0 as f64, v - r0 as f64);
     let h00 = grid.get(c0, r0) as f64;
     let h10 = grid.get(c0 + 1, r0) as f64;
@@ -88,11 +92,16 @@ pub fn surface_below_memo<G: Grid + ?Sized>(
         + h01 * (1.0 - fx) * fy
         + h11 * fx * fy;
     let point = Vector3::new(query.x, query.y, h - frame.z_origin_m());
-    let (col, row) = (col_f.floor() as i64, row_f.floor() as i64);
+    let (col, row) = (floor_i64(col_f), floor_i64(row_f));
     if memo.pixel != (col, row) {
+        let mut fit = || plane_fit(grid, frame, col, row, 2);
+        let plane = match table {
+            Some(t) => t.plane_or(col, row, fit),
+            None => fit(),
+        };
         *memo = PlaneMemo {
             pixel: (col, row),
-            plane: plane_fit(grid, frame, col, row, 2),
+            plane,
         };
     }
     let plane = memo.plane?;
