@@ -7,6 +7,7 @@ use nalgebra::{Matrix6, Vector3, Vector6};
 
 use super::{jacobian_row, CELLS_PER_BANDWIDTH};
 use crate::fit::Correspondence;
+use crate::nn::frame::floor_i64;
 
 /// Matches per chunk of the parallel sums of [`NormalEquations::new`].
 pub(super) const SUM_CHUNK: usize = 16_384;
@@ -38,7 +39,7 @@ impl Sums {
             sums.h += c.weight * aat;
             sums.g += c.weight * r * a;
             sums.meat += (c.weight * r).powi(2) * aat;
-            let key = ((q.x / cell).floor() as i64, (q.y / cell).floor() as i64);
+            let key = (floor_i64(q.x / cell), floor_i64(q.y / cell));
             match &mut run {
                 Some((k, s)) if *k == key => *s += c.weight * r * a,
                 _ => {
