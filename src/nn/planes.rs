@@ -152,6 +152,9 @@ mod tests {
 
     #[test]
     fn windows_beyond_the_cap_or_empty_get_no_table() {
+        // the memory the module doc states: 56 bytes a pixel, 15 MiB at most
+        assert_eq!(std::mem::size_of::<OnceLock<Option<Plane>>>(), 56);
+        const { assert!(MAX_TABLE_PIXELS * 56 <= 15 << 20) };
         assert!(PlaneTable::new(0, 0, 512, 512).is_some());
         assert!(PlaneTable::new(0, 0, 513, 512).is_none());
         assert!(PlaneTable::new(0, 0, 0, 5).is_none());
