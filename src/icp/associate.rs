@@ -353,6 +353,7 @@ mod tests {
     use super::*;
     use crate::geo::GeoTransform;
     use crate::grid::{MemGrid, MemPyramid};
+    use crate::nn::{PlaneTable, WithPlanes};
     use crate::rng::SplitMix64;
     use nalgebra::{Translation3, UnitQuaternion};
 
@@ -390,6 +391,71 @@ mod tests {
             .collect();
         block_order(&mut points, &frame, 256);
         (MemPyramid::build(grid, 64), points, frame)
+    }
+
+    /// What a level keeps between calls (each query's ring plane and far
+    /// mark, and the pair's shared plane table) leaves every match, distance
+    /// and cell as matching afresh, through small steps (the far marks
+    /// hold) and jumps (they lapse), bounded and exact.
+    #[test]
+    fn what_is_kept_between_calls_matches_as_afresh() {
+        let (pyramid, points, frame) = scene();
+        let planed = WithPlanes::new(&pyramid, 0, PlaneTable::new(0, 0, 600, 600));
+        let steps = [
+            (0.7, -0.4, 0.3),
+            (0.71, -0.41, 0.31),
+            (0.712, -0.405, 0.305),
+            (3.0, 2.0, -1.0),
+            (3.001, 2.0, -1.002),
+        ];
+        for distances in [Distances::Bound, Distances::Exact] {
+            let mut memo = vec![QueryMemo::default(); points.len()];
+            let mut skipped = 0;
+            for (x, y, z) in steps {
+                let t = Isometry3::from_parts(
+                    Translation3::new(x, y, z),
+                    UnitQuaternion::from_euler_angles(0.0, 0.0, 0.002),
+                );
+                let fresh_matcher = Matcher {
+                    reference: &pyramid,
+                    level: 0,
+                    frame,
+                    tau_m: 10.0,
+                    metric: Metric::PointToSurface,
+                    distances,
+                };
+                let kept_matcher = Matcher {
+                    reference: &planed,
+                    level: 0,
+                    frame,
+                    tau_m: 10.0,
+                    metric: Metric::PointToSurface,
+                    distances,
+                };
+                let mut fresh_memo = vec![QueryMemo::default(); points.len()];
+                let fresh = associate(&fresh_matcher, &points, &mut fresh_memo, &t).unwrap();
+                let kept = associate(&kept_matcher, &points, &mut memo, &t).unwrap();
+                assert!(fresh.corrs.len() > 10_000, "{}", fresh.corrs.len());
+                assert_eq!(fresh.corrs.len(), kept.corrs.len());
+                for k in 0..fresh.corrs.len() {
+                    let (a, b) = (&fresh.corrs[k], &kept.corrs[k]);
+                    assert_eq!(
+                        (a.moving, a.reference, a.normal, a.normal_var),
+                        (b.moving, b.reference, b.normal, b.normal_var)
+                    );
+                    assert_eq!(fresh.distances_m[k], kept.distances_m[k]);
+                    let (c, d) = (&fresh.cells[k], &kept.cells[k]);
+                    assert_eq!(
+                        (c.roughness_m, c.var_m2, c.band_m),
+                        (d.roughness_m, d.var_m2, d.band_m)
+                    );
+                }
+                skipped += fresh.nn.pixels_visited as i64 - kept.nn.pixels_visited as i64;
+            }
+            // the far marks saved searches (the queries beyond the raster's
+            // edge and the spikes are found again otherwise)
+            assert!(skipped > 0, "{distances:?}");
+        }
     }
 
     /// The outlier rule decided by the pixel below (Bound) keeps exactly the
