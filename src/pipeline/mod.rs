@@ -6,7 +6,9 @@
 //! [`PairOutcome`] keyed by DSM indices; the sink (the calling thread) appends
 //! it to the journal and reports progress. Bounded channels give backpressure,
 //! so memory is the cache budget (which also covers the chunks the grids pin:
-//! [`memory`]) plus a few messages.
+//! [`memory`]) plus a few messages and each worker's pair in flight (its
+//! samples, reference windows and ring-plane table: tens of MiB, whatever
+//! the collection's size).
 //!
 //! Threads live here, in one place: the workers run every pair inside one rayon
 //! pool of `threads` threads (`pool.install`), so the data-parallel parts of ICP
