@@ -393,6 +393,22 @@ mod tests {
         (MemPyramid::build(grid, 64), points, frame)
     }
 
+    /// Point-to-surface matching on level 0 with a tau of 10 m.
+    fn surface_matcher<P>(
+        reference: &P,
+        frame: PixelFrame,
+        distances: Distances,
+    ) -> Matcher<'_, P> {
+        Matcher {
+            reference,
+            level: 0,
+            frame,
+            tau_m: 10.0,
+            metric: Metric::PointToSurface,
+            distances,
+        }
+    }
+
     /// What a level keeps between calls (each query's ring plane and far
     /// mark, and the pair's shared plane table) leaves every match, distance
     /// and cell as matching afresh, through small steps (the far marks
@@ -416,22 +432,8 @@ mod tests {
                     Translation3::new(x, y, z),
                     UnitQuaternion::from_euler_angles(0.0, 0.0, 0.002),
                 );
-                let fresh_matcher = Matcher {
-                    reference: &pyramid,
-                    level: 0,
-                    frame,
-                    tau_m: 10.0,
-                    metric: Metric::PointToSurface,
-                    distances,
-                };
-                let kept_matcher = Matcher {
-                    reference: &planed,
-                    level: 0,
-                    frame,
-                    tau_m: 10.0,
-                    metric: Metric::PointToSurface,
-                    distances,
-                };
+                let fresh_matcher = surface_matcher(&pyramid, frame, distances);
+                let kept_matcher = surface_matcher(&planed, frame, distances);
                 let mut fresh_memo = vec![QueryMemo::default(); points.len()];
                 let fresh = associate(&fresh_matcher, &points, &mut fresh_memo, &t).unwrap();
                 let kept = associate(&kept_matcher, &points, &mut memo, &t).unwrap();
@@ -469,14 +471,7 @@ mod tests {
             Translation3::new(0.7, -0.4, 0.3),
             UnitQuaternion::from_euler_angles(0.0, 0.0, 0.002),
         );
-        let matcher = |distances| Matcher {
-            reference: &pyramid,
-            level: 0,
-            frame,
-            tau_m: 10.0,
-            metric: Metric::PointToSurface,
-            distances,
-        };
+        let matcher = |distances| surface_matcher(&pyramid, frame, distances);
         let memo = || vec![QueryMemo::default(); points.len()];
         let exact = associate(&matcher(Distances::Exact), &points, &mut memo(), &t).unwrap();
         let bound = associate(&matcher(Distances::Bound), &points, &mut memo(), &t).unwrap();
