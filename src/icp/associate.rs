@@ -14,7 +14,7 @@ use crate::fit::Correspondence;
 use crate::grid::{Grid, GridError, Pyramid};
 use crate::nn::{
     nearest_or_within, normal_at, surface_below_memo, within_below, NnStats, PixelFrame, PlaneMemo,
-    Window, NORMAL_RADIUS_PX,
+    PlaneTable, Window, NORMAL_RADIUS_PX,
 };
 
 const BLOCK: usize = 4096;
@@ -188,6 +188,7 @@ fn match_block<P: Pyramid>(
     slots: Slots<'_>,
 ) -> Result<(usize, NnStats), GridError> {
     let mut level = matcher.reference.open_level(matcher.level)?;
+    let table = matcher.reference.planes(matcher.level);
     let queries: Vec<Vector3<f64>> = block
         .iter()
         .map(|p| t_ref_moving.transform_point(&Point3::from(*p)).coords)
@@ -222,7 +223,7 @@ fn match_block<P: Pyramid>(
                 below += 1;
             }
             let Some((corr, distance_m, cell)) =
-                match_query(&mut grid, matcher, q, &mut memo[i], &mut nn)
+                match_query(&mut grid, matcher, table, q, &mut memo[i], &mut nn)
             else {
                 continue;
             };
@@ -254,11 +255,13 @@ fn pixel_box(frame: &PixelFrame, queries: &[Vector3<f64>]) -> (i64, i64, i64, i6
 }
 
 /// The correspondence of one query `q` (reference frame, local): its exact
-/// NN within tau, then the reference point and normal of the metric; with the
-/// NN distance and the reference cell there.
-fn match_query<P: Pyramid, G: Grid>(
+/// NN within tau, then the reference point and normal of the metric (ring
+/// planes from `table` when the pair keeps one); with the NN distance and the
+/// reference cell there.
+fn match_query<P, G: Grid>(
     grid: &mut G,
     matcher: &Matcher<'_, P>,
+    table: Option<&PlaneTable>,
     q: &Vector3<f64>,
     memo: &mut QueryMemo,
     nn: &mut NnStats,
@@ -302,7 +305,6 @@ fn match_query<P: Pyramid, G: Grid>(
     };
     let (reference, normal, cell, normal_var) = match (matcher.metric, n) {
         (Metric::PointToSurface, _) => {
-            let table = matcher.reference.planes(matcher.level);
             let s = surface_below_memo(grid, frame, q, &mut memo.plane, table)?;
             let cell = Cell {
                 roughness_m: s.roughness_m,
@@ -497,6 +499,7 @@ mod tests {
             let single = match_query(
                 &mut grid,
                 &m,
+                None,
                 &q,
                 &mut QueryMemo::default(),
                 &mut NnStats::default(),
