@@ -10,6 +10,7 @@
 //! Pairs travel by DSM index; ids appear only in the journal and the report.
 //! [`shard`] splits the pairwise step over processes (`--shard K/N`, `--merge`).
 
+pub mod reach;
 pub mod report;
 pub mod scene;
 pub mod setup;
@@ -18,6 +19,7 @@ pub mod solve;
 
 use std::path::PathBuf;
 
+pub use reach::ReachReport;
 pub use report::{EdgeCounts, FailedPair};
 pub use scene::{SceneGraph, WeightsUsed};
 pub use setup::AlignPlan;
@@ -100,6 +102,9 @@ pub struct AlignOutcome {
     pub too_small_pairs: usize,
     /// DSMs that no reliable, kept edge constrains: their poses are not learned.
     pub unconstrained: Vec<String>,
+    /// The collection's offset bound and the converged pairs beyond it, made
+    /// `ambiguous` ([`reach`]); None when the pairs could not teach one.
+    pub reach: Option<ReachReport>,
     _lock: OutputLock,
 }
 
@@ -121,7 +126,7 @@ pub fn align(
 ) -> Result<AlignOutcome, AlignError> {
     let plan = setup::plan(store, config)?;
     let mut reused_pairs = 0;
-    let (lock, outcomes, _shard_locks) = match config.sharding {
+    let (lock, mut outcomes, _shard_locks) = match config.sharding {
         Sharding::Whole => {
             let (lock, mut journal, done) = setup::open_journal(store, &plan, config)?;
             reused_pairs = done.len();
@@ -148,6 +153,7 @@ pub fn align(
             )))
         }
     };
+    let reach = reach::judge(&mut outcomes, &config.pipeline.icp);
     let scene = scene::build_graph(store, &outcomes, config)?;
     let prior_deg = config.pipeline.icp.rotation_prior_deg;
     let mut solution = solve::solve(&scene, config.graph, plan.anchor, prior_deg)?;
@@ -171,6 +177,7 @@ pub fn align(
         reused_pairs,
         too_small_pairs: plan.too_small,
         unconstrained: report::unconstrained_ids(store, &solution),
+        reach,
         _lock: lock,
     })
 }

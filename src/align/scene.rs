@@ -251,6 +251,7 @@ mod tests {
                 trans_m: [0.1, 0.2, 0.05],
             }),
             information: information.map(Box::new),
+            search: None,
         }
     }
 

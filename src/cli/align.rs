@@ -253,6 +253,16 @@ fn print_summary(
     emit_line(&format!(
         "mean pairwise ICP rmse {mean_rmse:.3} m; largest edge residual {solved} {max_res:.3} m"
     ))?;
+    if let Some(r) = &outcome.reach {
+        emit_line(&format!(
+            "{} of {} searches widened beyond half an overlap converged farther than {:.1} m (twice the offset {:.0} % of the {} clear pairs lie within): ambiguous",
+            r.judged.len(),
+            r.reach.widened,
+            r.reach.bound_m,
+            100.0 * dsmstream::align::reach::QUANTILE,
+            r.reach.clear,
+        ))?;
+    }
     if let Some(f) = c.variance_factor.filter(|_| c.tree_edges.is_none()) {
         emit_line(&if f > 1.0 {
             format!(

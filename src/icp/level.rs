@@ -322,6 +322,7 @@ impl LevelOutcome {
             backward: None,
             restart: None,
             second_height: None,
+            search: None,
             nn: NnStatsSummary {
                 queries: self.nn.queries,
                 pixels_visited: self.nn.pixels_visited,

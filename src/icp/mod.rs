@@ -39,7 +39,7 @@ use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 pub use config::{IcpConfig, Metric};
 pub use result::{
     BackwardCheck, CentredPose, CentredSigma, IcpError, IcpResult, IcpStatus, NnStatsSummary,
-    RestartCheck, SecondHeight,
+    RestartCheck, SearchReach, SecondHeight,
 };
 
 /// Row-major 4x4 of a transform: [`crate::geo::rigid::to_rows`].
@@ -105,6 +105,12 @@ pub fn register<R: Pyramid, M: Pyramid>(
     if let Some(info) = result.information.as_mut() {
         floor::apply(info, starts.pixel_m, config.sigma_floor_px);
     }
+    let shift = result.centred().shift_m;
+    result.search = starts.ambiguity.is_some().then(|| SearchReach {
+        cut_m: starts.cut_m,
+        reached_m: starts.radius_m,
+        offset_m: shift[0].hypot(shift[1]),
+    });
     Ok(result)
 }
 

@@ -103,7 +103,31 @@ pub struct IcpResult {
     /// A second height of the overlap at the answer (see `icp::heights`):
     /// when there is one the pair is `Ambiguous`. None without one.
     pub second_height: Option<SecondHeight>,
+    /// How far the global search looked and how far the answer lies from
+    /// where the pair started; None when it did not run.
+    pub search: Option<SearchReach>,
     pub nn: NnStatsSummary,
+}
+
+/// How far a pair's global search looked, and where its answer lies.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize)]
+pub struct SearchReach {
+    /// The radius the search began with (the automatic one, cut to half a
+    /// narrow overlap), metres.
+    pub cut_m: f64,
+    /// The radius it reached: larger than `cut_m` when its best place lay on
+    /// the edge and the radius doubled.
+    pub reached_m: f64,
+    /// The answer's horizontal shift from the pair's start (the DSMs as
+    /// georeferenced, or as moved by `--initial`) at `centre_m`, metres.
+    pub offset_m: f64,
+}
+
+impl SearchReach {
+    /// The search looked beyond the radius it began with.
+    pub fn widened(&self) -> bool {
+        self.reached_m > self.cut_m
+    }
 }
 
 /// The restart check of a pair (see `icp::restart`).
@@ -205,6 +229,7 @@ impl IcpResult {
             backward: None,
             restart: None,
             second_height: None,
+            search: None,
             nn: Default::default(),
         }
     }

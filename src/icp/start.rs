@@ -35,6 +35,9 @@ pub struct Starts {
     pub ambiguity: Option<f64>,
     /// The search radius used, metres: also the largest motion ICP may make from a start.
     pub radius_m: f64,
+    /// The radius the search started with: the automatic one cut to half a
+    /// narrow overlap (`radius_m` is larger when the search widened).
+    pub cut_m: f64,
     /// Full-resolution pixel (the coarser of the two DSMs), metres.
     pub pixel_m: f64,
 }
@@ -75,6 +78,7 @@ pub fn find_starts<R: Pyramid, M: Pyramid>(
             }],
             ambiguity: None,
             radius_m,
+            cut_m: radius_m,
             pixel_m,
         });
     };
@@ -89,7 +93,10 @@ pub fn find_starts<R: Pyramid, M: Pyramid>(
     // radius found chance fits where the strip slid along itself, or, on 64 m
     // tiles, 90 m away where the tiles meet another way (docs/measurements.md,
     // "The search radius beyond half a narrow overlap").
+    // In a collection, `align` judges a widened search's far answer by the
+    // offsets its clear pairs measured (`crate::align::reach`).
     let ambiguity = found.ambiguity;
+    let cut_m = radius_m;
     let mut last = found;
     while radius_m < full_m && on_edge(reference, &last, radius_m)? {
         radius_m = (2.0 * radius_m).min(full_m);
@@ -110,6 +117,7 @@ pub fn find_starts<R: Pyramid, M: Pyramid>(
         starts,
         ambiguity: Some(ambiguity),
         radius_m,
+        cut_m,
         pixel_m,
     })
 }
@@ -335,6 +343,14 @@ mod tests {
             let found = find_starts(&reference, &moving, &IcpConfig::default()).unwrap();
             let near = (found.starts.iter()).any(|s| (s.shift_m - truth).xy().norm() < 1.5);
             assert!(near, "{dx}: {:?}", places(&found.starts));
+            let widened = found.radius_m > found.cut_m;
+            assert_eq!(
+                widened,
+                dx < -10.0,
+                "{dx}: {} {}",
+                found.cut_m,
+                found.radius_m
+            );
             let config = IcpConfig {
                 model: crate::fit::Model::Translation,
                 ..IcpConfig::default()

@@ -10,7 +10,7 @@ use nalgebra::Matrix4;
 use serde::{Deserialize, Serialize};
 
 use crate::fit::FitSigma;
-use crate::icp::IcpStatus;
+use crate::icp::{IcpStatus, SearchReach};
 use crate::pipeline::{Failure, IcpFit, PairInformation, PairOutcome, PairTask};
 use crate::poses::rigid::rigidity;
 use crate::poses::RIGIDITY_TOLERANCE;
@@ -40,6 +40,9 @@ pub struct EdgeRecord {
     /// before it was reported (the edge then falls back to `sigma`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub information: Option<PairInformation>,
+    /// How far the global search looked (absent in journals written before).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub search: Option<SearchReach>,
     /// Why the pair gave no edge (below --min-overlap, read error, no valid overlap...).
     pub note: Option<String>,
 }
@@ -91,11 +94,12 @@ impl DsmIds {
             iterations: 0,
             sigma: None,
             information: None,
+            search: None,
             note: None,
         };
         let fit = match outcome {
-            PairOutcome::Registered { fit, .. }
-            | PairOutcome::Failed {
+            PairOutcome::Registered { fit, .. } => fit,
+            PairOutcome::Failed {
                 failure: Failure::Ended(fit),
                 ..
             } => fit,
@@ -112,6 +116,7 @@ impl DsmIds {
         record.iterations = fit.iterations;
         record.sigma = fit.sigma;
         record.information = fit.information.as_deref().cloned();
+        record.search = fit.search.as_deref().copied();
         record
     }
 
@@ -194,6 +199,14 @@ fn fit_of(record: &EdgeRecord, status: IcpStatus, rows: &[[f64; 4]; 4]) -> Resul
     if !sigma_ok {
         return Err("sigma holds a negative or non-finite number".into());
     }
+    let search_ok = record.search.is_none_or(|s| {
+        [s.cut_m, s.reached_m, s.offset_m]
+            .iter()
+            .all(|v| v.is_finite() && *v >= 0.0)
+    });
+    if !search_ok {
+        return Err("search holds a negative or non-finite number".into());
+    }
     if record.information.as_ref().is_some_and(|i| !i.is_valid()) {
         return Err("information holds a non-finite number or is not a covariance".into());
     }
@@ -205,6 +218,7 @@ fn fit_of(record: &EdgeRecord, status: IcpStatus, rows: &[[f64; 4]; 4]) -> Resul
         iterations: record.iterations,
         sigma: record.sigma,
         information: record.information.clone().map(Box::new),
+        search: record.search.map(Box::new),
     };
     // An edge's RMSE feeds the weights; a failed fit's is only reported.
     if fit.usable() && !(fit.rmse_m.is_finite() && fit.rmse_m >= 0.0) {

@@ -70,6 +70,12 @@ fn outcome(i: usize) -> PairOutcome {
                     }),
                 })
             }),
+            // Pairs from 2 on carry their search's reach.
+            search: (i >= 2).then_some(Box::new(crate::icp::SearchReach {
+                cut_m: 9.5,
+                reached_m: 19.0,
+                offset_m: 0.1 * i as f64 + 1e-9,
+            })),
         },
     }
 }

@@ -5,7 +5,7 @@ use nalgebra::{Matrix4, Matrix6, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::fit::{Axis, FitInformation, FitSigma};
-use crate::icp::IcpStatus;
+use crate::icp::{IcpStatus, SearchReach};
 
 /// A candidate pair by DSM index (reference < moving).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -30,6 +30,9 @@ pub struct IcpFit {
     /// The final fit's covariance and degenerate axes; None for pairs journaled
     /// before it was reported, or when the ICP did not compute it.
     pub information: Option<Box<PairInformation>>,
+    /// How far the global search looked; None for pairs journaled before it
+    /// was reported, or registered without a search.
+    pub search: Option<Box<SearchReach>>,
 }
 
 /// What a pair's fit knows, as journaled: the 6x6 covariance of (x, y, z [m],
@@ -116,6 +119,9 @@ impl IcpFit {
 
 /// Why a pair that should have given an edge did not.
 #[derive(Clone, Debug, PartialEq)]
+// An ended fit is kept whole for the journal and the report; failures are
+// few, so their size does not matter.
+#[allow(clippy::large_enum_variant)]
 pub enum Failure {
     /// Reading or scoring failed, or ICP returned an error: the message.
     Error(String),

@@ -63,6 +63,7 @@ pub fn register_pair(
                     .information
                     .as_ref()
                     .map(|i| Box::new(PairInformation::from_fit(i))),
+                search: r.search.map(Box::new),
             };
             if fit.usable() {
                 PairOutcome::Registered { pair, overlap, fit }

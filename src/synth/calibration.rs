@@ -246,6 +246,7 @@ mod tests {
                 degenerate: vec![],
                 gridding: None,
             }),
+            search: None,
             note: None,
         };
         let e = truth.edge_error(&record).unwrap();

@@ -60,3 +60,47 @@ fn a_platform_over_most_of_a_narrow_overlap_makes_the_height_ambiguous() {
         "{error:?} against {sigma:?}"
     );
 }
+
+/// tile_159 -> tile_160 of the same grid: the best place within half their
+/// 19 m strip lay on its edge, the radius doubled to 38 m and the pair
+/// converged 21 m off with metre sigmas (20 sigma), a corner landing on a
+/// corner. The grid's clear pairs lie within 5 m: in a 4 x 4 block around
+/// the pair, `align` judges that answer `ambiguous` (its edge is not
+/// `converged` and its DSM not placed by it) and says so.
+#[test]
+fn a_converged_answer_beyond_the_collections_offsets_is_not_trusted() {
+    let temp = tempfile::tempdir().unwrap();
+    let dir = temp.path();
+    let tiles = dir.join("tiles");
+    crate::util::grid_tiles(&tiles, "50", "128", "5", "centre");
+    let block: Vec<_> = (2..6)
+        .flat_map(|r| (8..12).map(move |c| r * 50 + c))
+        .map(|k| tiles.join(format!("tile_{k}.tif")))
+        .collect();
+    let store = dir.join("b.zarr");
+    crate::util::ingest(&block, &store);
+    let (_, v) = pair_json(&store, "tile_159", "tile_160");
+    let error = crate::util::shift_error(&tiles.join("truth.json"), "tile_159", "tile_160", &v);
+    assert!(
+        v["status"] == "converged" && error[0].hypot(error[1]) > 10.0,
+        "the pair no longer converges far off alone: {error:?} {v}"
+    );
+    let poses = dir.join("p.json");
+    let run = crate::util::run(&[&"align", &store, &"--out", &poses]);
+    crate::util::assert_ok(&run);
+    let out = crate::util::text(&run.stdout);
+    assert!(
+        out.contains("1 of 2 searches widened beyond half an overlap converged farther than"),
+        "{out}"
+    );
+    let doc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&poses).unwrap()).unwrap();
+    let edge = (doc["edges"].as_array().unwrap().iter())
+        .find(|e| e["i"] == "tile_159" && e["j"] == "tile_160")
+        .unwrap();
+    assert_eq!(edge["converged"], false, "{edge}");
+    let pose = (doc["poses"].as_array().unwrap().iter())
+        .find(|p| p["id"] == "tile_160")
+        .unwrap();
+    assert_eq!(pose["status"], "unconstrained", "{pose}");
+}
