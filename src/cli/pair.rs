@@ -230,6 +230,18 @@ fn table(reference: &str, moving: &str, r: &IcpResult, pose: &CentredPose, secon
             "ambiguity   {amb:.2} (best / second-best fit of the global search; near 1: another place fits as well)"
         );
     }
+    if let Some(s) = &r.search {
+        let widened = if s.widened() {
+            format!(", widened to {:.1} m (the best place lay on the edge)", s.reached_m)
+        } else {
+            String::new()
+        };
+        let _ = writeln!(
+            t,
+            "search      within {:.1} m{widened}; the answer lies {:.2} m from the start",
+            s.cut_m, s.offset_m
+        );
+    }
     if let Some(b) = &r.backward {
         let _ = writeln!(
             t,
