@@ -253,7 +253,7 @@ fn print_summary(
     emit_line(&format!(
         "mean pairwise ICP rmse {mean_rmse:.3} m; largest edge residual {solved} {max_res:.3} m"
     ))?;
-    if let Some(r) = &outcome.reach {
+    if let Some(r) = outcome.reach.as_ref().filter(|r| r.reach.widened > 0) {
         emit_line(&format!(
             "{} of {} searches widened beyond half an overlap converged farther than {:.1} m (twice the offset {:.0} % of the {} clear pairs lie within): ambiguous",
             r.judged.len(),

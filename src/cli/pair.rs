@@ -232,7 +232,10 @@ fn table(reference: &str, moving: &str, r: &IcpResult, pose: &CentredPose, secon
     }
     if let Some(s) = &r.search {
         let widened = if s.widened() {
-            format!(", widened to {:.1} m (the best place lay on the edge)", s.reached_m)
+            format!(
+                ", widened to {:.1} m (the best place lay on the edge)",
+                s.reached_m
+            )
         } else {
             String::new()
         };
