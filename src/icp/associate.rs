@@ -24,16 +24,12 @@ const WINDOW_TILE_PX: i64 = 256;
 /// Fewer queries on a tile than this read the grid directly (a window of the
 /// search margin around one query costs more than it saves).
 const MIN_WINDOW_RUN: usize = 16;
-/// Pixels around a query its matching reads in the common case: the plane
-/// window of the surface below and the first rings of a search, plus one
-/// (farther reads, rare, go to the grid).
-const MARGIN_PX: i64 = NORMAL_RADIUS_PX + 3;
 
 /// The nearest neighbour is searched this much beyond tau (a share of tau):
 /// a query found beyond tau may then move by its margin and stay beyond,
 /// with no search (spikes, voids, the parts of a sample that miss the
 /// reference are found again each iteration otherwise).
-pub(super) const FAR_REACH: f64 = 0.5;
+const FAR_REACH: f64 = 0.5;
 
 /// What one query's matching keeps between calls on one level: its ring
 /// plane, and once its nearest neighbour proved beyond tau, how far it may
@@ -100,6 +96,15 @@ pub enum Distances {
     /// iterations): the pixel right below within tau settles that without a
     /// search, its distance kept as the bound. The same matches as `Exact`.
     Bound,
+}
+
+impl<P> Matcher<'_, P> {
+    /// Pixels around a query its matching reads in the common case: the
+    /// plane window of the surface below and the first rings of a search,
+    /// plus one (farther reads, rare, go to the grid).
+    fn margin_px(&self) -> i64 {
+        NORMAL_RADIUS_PX + 3
+    }
 }
 
 impl<P: Pyramid> Matcher<'_, P> {
@@ -188,46 +193,16 @@ fn match_block<P: Pyramid>(
         .iter()
         .map(|p| t_ref_moving.transform_point(&Point3::from(*p)).coords)
         .collect();
-    let (mut below, mut nn) = (0usize, NnStats::default());
-    in_windows(&mut level, &matcher.frame, &queries, |grid, i| {
-        let q = &queries[i];
-        let (c, r) = matcher.frame.cell_of(q);
-        if !grid.get(c, r).is_nan() {
-            below += 1;
-        }
-        let Some((corr, distance_m, cell)) =
-            match_query(grid, matcher, table, q, &mut memo[i], &mut nn)
-        else {
-            return;
-        };
-        slots.corrs[i] = corr;
-        slots.distances_m[i] = distance_m;
-        slots.cells[i] = cell;
-    });
-    if let Some(e) = level.take_error() {
-        return Err(e);
-    }
-    Ok((below, nn))
-}
-
-/// Calls `visit(grid, i)` for each query `i` (local frame, in order), the grid
-/// a view of `level`: runs of queries on one reference tile (as
-/// [`block_order`] keeps them) read it through one [`Window`] with the
-/// search margin, shorter runs the level itself. The values read are the
-/// level's either way.
-pub(super) fn in_windows<G: Grid>(
-    level: &mut G,
-    frame: &PixelFrame,
-    queries: &[Vector3<f64>],
-    mut visit: impl FnMut(&mut Window<'_, G>, usize),
-) {
     let tiles: Vec<(i64, i64)> = queries
         .iter()
         .map(|q| {
-            let (c, r) = frame.cell_of(q);
+            let (c, r) = matcher.frame.cell_of(q);
             (r.div_euclid(WINDOW_TILE_PX), c.div_euclid(WINDOW_TILE_PX))
         })
         .collect();
+    let (mut below, mut nn) = (0usize, NnStats::default());
+    // runs of queries on one tile of the reference (the block order keeps
+    // them together) read it through one window
     let mut start = 0;
     while start < queries.len() {
         let run = tiles[start..]
@@ -236,16 +211,32 @@ pub(super) fn in_windows<G: Grid>(
             .count();
         let run = start..start + run;
         let mut grid = if run.len() >= MIN_WINDOW_RUN {
-            let bounds = pixel_box(frame, &queries[run.clone()]);
-            Window::around(level, bounds, MARGIN_PX)
+            let bounds = pixel_box(&matcher.frame, &queries[run.clone()]);
+            Window::around(&mut level, bounds, matcher.margin_px())
         } else {
-            Window::none(level)
+            Window::none(&mut level)
         };
         for i in run.clone() {
-            visit(&mut grid, i);
+            let q = &queries[i];
+            let (c, r) = matcher.frame.cell_of(q);
+            if !grid.get(c, r).is_nan() {
+                below += 1;
+            }
+            let Some((corr, distance_m, cell)) =
+                match_query(&mut grid, matcher, table, q, &mut memo[i], &mut nn)
+            else {
+                continue;
+            };
+            slots.corrs[i] = corr;
+            slots.distances_m[i] = distance_m;
+            slots.cells[i] = cell;
         }
         start = run.end;
     }
+    if let Some(e) = level.take_error() {
+        return Err(e);
+    }
+    Ok((below, nn))
 }
 
 /// The pixels of the lattice the queries fall in, (col0, row0, col1, row1)

@@ -9,7 +9,6 @@ use super::backward::inflate;
 use super::config::{LADDER_SAMPLES, PAPER_TAU_M};
 use super::final_rule;
 use super::iterate::{iterate, Convergence, Phase, Rules};
-use super::residuals::{rms, FinalQueries};
 use super::robust::{smooth_only, weighted};
 use super::sample::{pixel_window, sample_overlap};
 use super::start::moved_overlap;
@@ -41,12 +40,8 @@ pub(super) struct LevelOutcome {
     sigma: FitSigma,
     /// The spread of the iterates whose mean the answer is (`Phase::jitter`).
     jitter: Option<Vector6<f64>>,
-    /// The matches at the returned transform, over every sample (their
-    /// distances bounded: the exact ones are measured for the returned
-    /// result only, [`super::residuals`]).
+    /// The matches at the returned transform, over every sample.
     final_association: Association,
-    /// The level and lattice they were matched on, and the outlier distance.
-    final_matcher: (usize, PixelFrame, f64),
     nn: NnStats,
 }
 
@@ -137,8 +132,12 @@ impl<'a, R: Pyramid> Level<'a, R> {
             &mut nn,
         )?;
         let t_ref_moving = phase.t_ref_moving;
+        let exact = Matcher {
+            distances: Distances::Exact,
+            ..matcher
+        };
         let final_association = match_at(
-            &matcher,
+            &exact,
             &self.samples,
             &mut full_memo,
             &t_ref_moving,
@@ -154,7 +153,6 @@ impl<'a, R: Pyramid> Level<'a, R> {
             sigma: phase.sigma,
             jitter: phase.jitter,
             final_association,
-            final_matcher: (self.index, matcher.frame, tau_m),
             nn,
         })
     }
@@ -306,18 +304,9 @@ impl LevelOutcome {
             IcpStatus::Converged if !degenerate.is_empty() => IcpStatus::Degenerate,
             s => s,
         };
-        let (level, frame, tau_m) = self.final_matcher;
-        let final_queries = FinalQueries {
-            level,
-            frame,
-            tau_m,
-            queries: matches.corrs.iter().map(|c| c.moving).collect(),
-        };
         IcpResult {
             t_ref_moving: isometry_to_world(&self.t_ref_moving, origin),
-            // measured once the pair's result is chosen (`register`)
-            rmse_m: f64::NAN,
-            final_queries: Some(std::sync::Arc::new(final_queries)),
+            rmse_m: rms(&matches.distances_m),
             rmse_plane_m: rms(&plane),
             inliers: matches.corrs.len(),
             samples: matches.queries,
@@ -401,6 +390,13 @@ pub(super) fn start_level<R: Pyramid, M: Pyramid>(
     best
 }
 
+fn rms(values: &[f64]) -> f64 {
+    if values.is_empty() {
+        return f64::NAN;
+    }
+    (values.iter().map(|v| v * v).sum::<f64>() / values.len() as f64).sqrt()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -420,5 +416,11 @@ mod tests {
             ..phase
         };
         assert_eq!(judge(&few, 10, 30), IcpStatus::TooFewInliers);
+    }
+
+    #[test]
+    fn rms_of_nothing_is_nan() {
+        assert!(rms(&[]).is_nan());
+        assert_eq!(rms(&[3.0, 4.0, 0.0, 0.0]), 2.5);
     }
 }

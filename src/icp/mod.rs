@@ -26,7 +26,6 @@ pub mod floor;
 mod heights;
 mod iterate;
 mod level;
-mod residuals;
 mod restart;
 pub mod result;
 mod robust;
@@ -105,12 +104,6 @@ pub fn register<R: Pyramid, M: Pyramid>(
     let mut result = heights::check_heights(reference, moving, result, tau_m, starts.pixel_m)?;
     if let Some(info) = result.information.as_mut() {
         floor::apply(info, starts.pixel_m, config.sigma_floor_px);
-    }
-    if let Some(last) = result.final_queries.take() {
-        let (rmse_m, nn) = residuals::exact_rmse(reference, &last).map_err(IcpError::Read)?;
-        result.rmse_m = rmse_m;
-        result.nn.queries += nn.queries;
-        result.nn.pixels_visited += nn.pixels_visited;
     }
     let shift = result.centred().shift_m;
     result.search = starts.ambiguity.is_some().then(|| SearchReach {

@@ -107,10 +107,6 @@ pub struct IcpResult {
     /// where the pair started; None when it did not run.
     pub search: Option<SearchReach>,
     pub nn: NnStatsSummary,
-    /// The final inliers whose exact distances give `rmse_m`, until
-    /// `register` measures them for the result it returns.
-    #[serde(skip)]
-    pub(crate) final_queries: Option<std::sync::Arc<super::residuals::FinalQueries>>,
 }
 
 /// How far a pair's global search looked, and where its answer lies.
@@ -235,7 +231,6 @@ impl IcpResult {
             second_height: None,
             search: None,
             nn: Default::default(),
-            final_queries: None,
         }
     }
 
