@@ -31,7 +31,7 @@
 //! outcomes alone: a resumed run and a merge of shards judge alike.
 
 use crate::icp::{IcpConfig, IcpStatus};
-use crate::pipeline::{Failure, IcpFit, PairOutcome, PairTask};
+use crate::pipeline::{IcpFit, PairOutcome, PairTask};
 
 /// Clear pairs needed to learn the collection's offsets.
 pub const MIN_CLEAR_PAIRS: usize = 10;
@@ -65,23 +65,11 @@ pub struct ReachReport {
     pub judged: Vec<PairTask>,
 }
 
-/// The fit of a pair, whatever it ended as.
-fn fit_of(outcome: &PairOutcome) -> Option<&IcpFit> {
-    match outcome {
-        PairOutcome::Registered { fit, .. } => Some(fit),
-        PairOutcome::Failed {
-            failure: Failure::Ended(fit),
-            ..
-        } => Some(fit),
-        _ => None,
-    }
-}
-
 /// The collection's offset bound from the first pass's outcomes; None when
 /// they cannot teach one (see the module doc).
 pub fn learn(outcomes: &[PairOutcome]) -> Option<Reach> {
     let (mut clear, mut searched, mut widened) = (Vec::new(), 0, 0);
-    for fit in outcomes.iter().filter_map(fit_of) {
+    for fit in outcomes.iter().filter_map(PairOutcome::fit) {
         let Some(search) = fit.search.as_deref() else {
             continue;
         };
@@ -117,7 +105,7 @@ pub fn beyond(outcomes: &[PairOutcome], reach: &Reach) -> Vec<PairTask> {
                 .is_some_and(|s| s.widened() && s.offset_m > reach.bound_m)
     };
     (outcomes.iter())
-        .filter(|o| fit_of(o).is_some_and(far))
+        .filter(|o| o.fit().is_some_and(far))
         .map(PairOutcome::pair)
         .collect()
 }
@@ -232,7 +220,7 @@ mod tests {
 
     fn status(outcomes: &[PairOutcome], k: usize) -> IcpStatus {
         let o = outcomes.iter().find(|o| o.pair().reference == k).unwrap();
-        fit_of(o).unwrap().status
+        o.fit().unwrap().status
     }
 
     /// Twenty clear pairs 0.5-10 m off (their 0.9 quantile 9.5 m: the bound
@@ -267,7 +255,7 @@ mod tests {
         );
         assert_eq!(status(&outcomes, 50), IcpStatus::Ambiguous);
         assert_eq!(status(&outcomes, 40), IcpStatus::Converged);
-        let fit = fit_of(&outcomes[22]).unwrap();
+        let fit = outcomes[22].fit().unwrap();
         let c = fit.information.as_ref().unwrap().covariance;
         assert_eq!([c[0][0], c[1][1], c[2][2]], [900.01, 900.04, 1e-4]);
         let s = fit.sigma.unwrap().trans_m;

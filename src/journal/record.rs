@@ -97,16 +97,9 @@ impl DsmIds {
             search: None,
             note: None,
         };
-        let fit = match outcome {
-            PairOutcome::Registered { fit, .. } => fit,
-            PairOutcome::Failed {
-                failure: Failure::Ended(fit),
-                ..
-            } => fit,
-            _ => {
-                record.note = outcome.why_no_edge();
-                return record;
-            }
+        let Some(fit) = outcome.fit() else {
+            record.note = outcome.why_no_edge();
+            return record;
         };
         let m = &fit.t_ref_moving_world;
         record.status = Some(fit.status);

@@ -167,6 +167,18 @@ impl PairOutcome {
         }
     }
 
+    /// The fit ICP returned, usable or not; None when it did not run.
+    pub fn fit(&self) -> Option<&IcpFit> {
+        match self {
+            PairOutcome::Registered { fit, .. } => Some(fit),
+            PairOutcome::Failed {
+                failure: Failure::Ended(fit),
+                ..
+            } => Some(fit),
+            _ => None,
+        }
+    }
+
     /// The fit the graph can use, if any.
     pub fn edge_fit(&self) -> Option<&IcpFit> {
         match self {
