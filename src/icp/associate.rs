@@ -351,4 +351,4 @@ impl Association {
 }
 
 #[cfg(test)]
-pub(super) mod tests;
+mod tests;

@@ -252,6 +252,10 @@ fn records_of_another_collection_or_not_rigid_are_refused_by_line() {
         "{err}"
     );
     assert!(err.to_string().contains("not a rigid transform"), "{err}");
+    let mut far = ids().record(&outcome(2));
+    far.search.as_mut().unwrap().offset_m = -1.0;
+    let err = resume_lines(&[serde_json::to_string(&far).unwrap()]);
+    assert!(err.to_string().contains("search holds a negative"), "{err}");
 }
 
 #[test]

@@ -10,7 +10,7 @@ use nalgebra::{Translation3, UnitQuaternion};
 
 /// A noisy 600 x 600 px surface with walls and voids, and queries over
 /// it and beyond its edge (some outliers beyond tau).
-pub(crate) fn scene() -> (MemPyramid, Vec<Vector3<f64>>, PixelFrame) {
+fn scene() -> (MemPyramid, Vec<Vector3<f64>>, PixelFrame) {
     let gt = GeoTransform::north_up(1000.0, 2000.0, 0.5, 0.5);
     let mut rng = SplitMix64::new(7);
     let grid = MemGrid::from_fn(600, 600, gt, |c, r| {
@@ -45,11 +45,7 @@ pub(crate) fn scene() -> (MemPyramid, Vec<Vector3<f64>>, PixelFrame) {
 }
 
 /// Point-to-surface matching on level 0 with a tau of 10 m.
-pub(crate) fn surface_matcher<P>(
-    reference: &P,
-    frame: PixelFrame,
-    distances: Distances,
-) -> Matcher<'_, P> {
+fn surface_matcher<P>(reference: &P, frame: PixelFrame, distances: Distances) -> Matcher<'_, P> {
     Matcher {
         reference,
         level: 0,
