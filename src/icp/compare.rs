@@ -55,30 +55,89 @@ pub(super) fn on_shared_samples<R: Pyramid, M: Pyramid>(
     tried: &mut [(IcpResult, f64, f64)],
     pixel_m: f64,
 ) -> Result<(), IcpError> {
-    let read = IcpError::Read;
     let eligible: Vec<usize> = (0..tried.len())
         .filter(|&k| tried[k].0.status.is_converged_or_held())
         .collect();
     if eligible.len() < 2 {
         return Ok(());
     }
-    let shifts: Vec<Vector3<f64>> = (eligible.iter())
-        .map(|&k| shift_at_centre(&tried[k].0))
-        .collect();
+    let places: Vec<&IcpResult> = eligible.iter().map(|&k| &tried[k].0).collect();
+    let Some(shared) = scores(reference, moving, &places)? else {
+        return Ok(());
+    };
+    let shifts: Vec<Vector3<f64>> = places.iter().map(|r| shift_at_centre(r)).collect();
+    for (a, &k) in eligible.iter().enumerate() {
+        let place = (0..eligible.len())
+            .filter(|&b| (shifts[a] - shifts[b]).amax() <= pixel_m)
+            .map(|b| shared.scores[b])
+            .fold(f64::INFINITY, f64::min);
+        tracing::debug!(
+            own = tried[k].2,
+            shared = shared.scores[a],
+            place,
+            samples = shared.samples,
+            level = shared.level,
+            "place compared"
+        );
+        tried[k].1 = place;
+    }
+    Ok(())
+}
+
+/// How nearly `other` fits as well as `best` on the samples their two
+/// places share (best's score over other's, at most 1); None when they
+/// share too few to say.
+pub(super) fn closeness<R: Pyramid, M: Pyramid>(
+    reference: &R,
+    moving: &M,
+    best: &IcpResult,
+    other: &IcpResult,
+) -> Result<Option<f64>, IcpError> {
+    let Some(shared) = scores(reference, moving, &[best, other])? else {
+        return Ok(None);
+    };
+    let [b, o] = [shared.scores[0], shared.scores[1]];
+    tracing::debug!(
+        best = b,
+        other = o,
+        samples = shared.samples,
+        "slid place compared"
+    );
+    Ok(Some(if o > 0.0 { (b / o).min(1.0) } else { 1.0 }))
+}
+
+/// The places' scores on the samples all of them share.
+struct Shared {
+    scores: Vec<f64>,
+    samples: usize,
+    level: usize,
+}
+
+/// Each place's robust spread of height differences on one lattice of
+/// moving samples that land on the reference at every place (module docs);
+/// None when the places share too little.
+fn scores<R: Pyramid, M: Pyramid>(
+    reference: &R,
+    moving: &M,
+    places: &[&IcpResult],
+) -> Result<Option<Shared>, IcpError> {
+    let read = IcpError::Read;
     let mut shared: Option<Bounds> = None;
-    for shift in &shifts {
-        let Some(landed) = moved_overlap(reference, moving, shift)? else {
-            return Ok(());
+    for place in places {
+        let Some(landed) = moved_overlap(reference, moving, &shift_at_centre(place))? else {
+            return Ok(None);
         };
         shared = match shared {
             None => Some(landed),
             Some(b) => match b.intersection(&landed) {
                 Some(common) => Some(common),
-                None => return Ok(()),
+                None => return Ok(None),
             },
         };
     }
-    let shared = shared.expect("two or more places");
+    let Some(shared) = shared else {
+        return Ok(None);
+    };
     let level = read_level(reference, moving, &shared)?;
     let mut mov = moving.open_level(level).map_err(read)?;
     let box_m = [shared.min_x, shared.min_y, shared.max_x, shared.max_y];
@@ -87,9 +146,9 @@ pub(super) fn on_shared_samples<R: Pyramid, M: Pyramid>(
         return Err(read(e));
     }
     let mut refg = reference.open_level(level).map_err(read)?;
-    let heights: Vec<Vec<f64>> = (eligible.iter())
-        .map(|&k| {
-            let t = &tried[k].0.t_ref_moving;
+    let heights: Vec<Vec<f64>> = (places.iter())
+        .map(|place| {
+            let t = &place.t_ref_moving;
             (samples.iter())
                 .map(|s| {
                     let p = t.transform_point(&Point3::new(s.x_m, s.y_m, s.h_m));
@@ -105,30 +164,19 @@ pub(super) fn on_shared_samples<R: Pyramid, M: Pyramid>(
         .filter(|&i| heights.iter().all(|dh| dh[i].is_finite()))
         .collect();
     if everywhere.len() < MIN_SHARED {
-        return Ok(());
+        return Ok(None);
     }
-    let scores: Vec<f64> = (heights.iter())
+    let scores = (heights.iter())
         .map(|dh| {
             let mut residuals: Vec<f64> = everywhere.iter().map(|&i| dh[i]).collect();
             score_residuals(&mut residuals, MIN_SHARED).cost_m
         })
         .collect();
-    for (a, &k) in eligible.iter().enumerate() {
-        let place = (0..eligible.len())
-            .filter(|&b| (shifts[a] - shifts[b]).amax() <= pixel_m)
-            .map(|b| scores[b])
-            .fold(f64::INFINITY, f64::min);
-        tracing::debug!(
-            own = tried[k].2,
-            shared = scores[a],
-            place,
-            samples = everywhere.len(),
-            level,
-            "place compared"
-        );
-        tried[k].1 = place;
-    }
-    Ok(())
+    Ok(Some(Shared {
+        scores,
+        samples: everywhere.len(),
+        level,
+    }))
 }
 
 /// Where a result moves the centre of its fit, metres (moving -> reference).

@@ -49,7 +49,7 @@ use crate::fit::{DegeneracyRule, WallSnap};
 use crate::geo::Bounds;
 use crate::grid::{Grid, Pyramid};
 use crate::nn::{PlaneTable, WithPlanes, NORMAL_RADIUS_PX};
-use choice::choose;
+use choice::{choose, slid_rivals};
 use iterate::Rules;
 use level::{start_level, Level};
 use start::{find_starts, moved_overlap, Start, Starts};
@@ -96,7 +96,12 @@ pub fn register<R: Pyramid, M: Pyramid>(
     let mut tried: Vec<(IcpResult, f64, f64)> = tried.into_iter().map(|(r, c)| (r, c, c)).collect();
     tried.sort_by(|a, b| a.2.total_cmp(&b.2));
     compare::on_shared_samples(reference, moving, &mut tried, starts.pixel_m)?;
-    let forward = choose(tried, starts.ambiguity, starts.pixel_m);
+    let ends: Vec<(IcpResult, f64)> = (tried.iter())
+        .filter(|t| t.0.status.is_converged_or_held() || t.0.status == IcpStatus::MaxIterations)
+        .map(|t| (t.0.clone(), t.2))
+        .collect();
+    let (forward, own) = choose(tried, starts.ambiguity, starts.pixel_m);
+    let forward = slid_rivals(reference, moving, forward, own, ends, starts.pixel_m)?;
     let limits = (starts.pixel_m, starts.radius_m);
     let forward = restart::check_restarts(reference, moving, config, forward, limits);
     let result = check_backward(reference, moving, config, &starts, forward);
