@@ -21,12 +21,14 @@
 //! (a 72 m offset across a 38 m strip, beyond the search cut to half of it)
 //! had three of four starts slide to places 6-10 m from the one that
 //! converged, at lower own costs, and the pair reported x to 1.3 m, 70 m off.
-//! Own costs of sliding runs are no judge (a run sliding off a strip is
-//! scored on what still lands: on the 20 x 20 grid of 128 m tiles 27 correct
-//! pairs had one cheaper by 1-8 %), so such a place, where its own cost is no
-//! higher than the winner's, is compared with the winner on the samples the
-//! two share ([`slid_rivals`]); within [`AMBIGUOUS_COST_RATIO`] there it is
-//! a rival like any other.
+//! Own costs of sliding runs are no judge alone (a run sliding off a strip is
+//! scored on what still lands: on the 20 x 20 grid of 128 m tiles 27
+//! converged pairs, all within 3 of their x and y sigmas, had one cheaper by
+//! 1-8 %), and the samples two places share tell metres apart on smooth
+//! ground only by a few per cent. So only a place no other start converged
+//! to is judged, against each place where a sliding start stopped at an own
+//! cost no higher, on the samples the two share ([`slid_rivals`]); within
+//! [`AMBIGUOUS_COST_RATIO`] there it is a rival like any other.
 
 use nalgebra::{Matrix6, Point3, Vector3};
 
