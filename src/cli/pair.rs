@@ -227,7 +227,7 @@ fn table(reference: &str, moving: &str, r: &IcpResult, pose: &CentredPose, secon
     if let Some(amb) = r.ambiguity {
         let _ = writeln!(
             t,
-            "ambiguity   {amb:.2} (best / second-best fit of the global search; near 1: another place fits as well)"
+            "ambiguity   {amb:.2} (this fit's cost over the nearest other place's: the global search's or the starts'; near 1: another place fits as well)"
         );
     }
     if let Some(s) = &r.search {
