@@ -142,6 +142,9 @@ fn reason(r: &IcpResult) -> String {
             "not converged after {} iterations (raise --max-iter, or the surfaces disagree)",
             r.iterations
         ),
+        IcpStatus::Ambiguous if r.backward.is_some_and(|b| !b.confirms) => {
+            "ambiguous: the backward check (the reference registered onto the moving DSM from this answer) does not confirm it".into()
+        }
         IcpStatus::Ambiguous => match &r.second_height {
             Some(h) => format!(
                 "ambiguous: {:.0} % of the overlap agrees on a height {:+.2} m from the answer (a changed building?)",
@@ -248,10 +251,11 @@ fn table(reference: &str, moving: &str, r: &IcpResult, pose: &CentredPose, secon
     if let Some(b) = &r.backward {
         let _ = writeln!(
             t,
-            "backward    dx {:.3}  dy {:.3}  dz {:.3} m, yaw {:.4} deg from the forward fit ({:?}; chi-square {:.1}: {})",
+            "backward    dx {:.3}  dy {:.3}  dz {:.3} m, yaw {:.4} deg from the forward fit ({:?}; chi-square {:.1}: {}){}",
             b.shift_m[0], b.shift_m[1], b.shift_m[2], b.rotation_deg[2], b.status,
             b.chi_square.unwrap_or(f64::NAN),
-            if b.beyond_noise { "beyond the two fits' noise, added to the sigmas" } else { "within the noise" }
+            if b.beyond_noise { "beyond the two fits' noise, added to the sigmas" } else { "within the noise" },
+            if b.confirms { "" } else { "; does not confirm the answer" }
         );
     }
     if let Some(c) = &r.restart {

@@ -29,6 +29,10 @@
 //! to is judged, against each place where a sliding start stopped at an own
 //! cost no higher, on the samples the two share ([`slid_rivals`]); within
 //! [`AMBIGUOUS_COST_RATIO`] there it is a rival like any other.
+//!
+//! A winner its backward check does not confirm (`icp::backward`) is
+//! `Ambiguous` too, with the spread of every place the starts ended at
+//! ([`unconfirmed`]).
 
 use nalgebra::{Matrix6, Point3, Vector3};
 
@@ -106,7 +110,7 @@ pub(super) fn slid_rivals<R: Pyramid, M: Pyramid>(
     moving: &M,
     best: IcpResult,
     best_own: f64,
-    ends: Vec<(IcpResult, f64)>,
+    ends: &[(IcpResult, f64)],
     pixel_m: f64,
 ) -> Result<IcpResult, IcpError> {
     let reached = (ends.iter())
@@ -118,13 +122,41 @@ pub(super) fn slid_rivals<R: Pyramid, M: Pyramid>(
     let mut elsewhere = Vec::new();
     for (r, own) in ends {
         let sliding = r.status == IcpStatus::MaxIterations;
-        if sliding && own <= best_own && differs(&best, &r, pixel_m) {
-            if let Some(near) = compare::closeness(reference, moving, &best, &r)? {
-                elsewhere.push((r, near));
+        if sliding && *own <= best_own && differs(&best, r, pixel_m) {
+            if let Some(near) = compare::closeness(reference, moving, &best, r)? {
+                elsewhere.push((r.clone(), near));
             }
         }
     }
     Ok(with_slid(best, elsewhere))
+}
+
+/// `best`, converged or held, whose backward check did not confirm it
+/// (`BackwardCheck::confirms`): `Ambiguous`, with the spread of every other
+/// place where a start ended (`ends`: converged, held or still sliding,
+/// whatever its cost) added to its covariance. An unconfirmed answer is no
+/// better founded than those places: tile_2397 -> tile_2398 of the 50 x 50
+/// grid of 64 m tiles converged 21 m off, at a third of the own cost of the
+/// georeferenced start's place, which was the truth. Anything else is
+/// returned as it is.
+pub(super) fn unconfirmed(
+    mut best: IcpResult,
+    ends: &[(IcpResult, f64)],
+    pixel_m: f64,
+) -> IcpResult {
+    let unconfirmed = best.backward.is_some_and(|b| !b.confirms);
+    if !best.status.is_converged_or_held() || !unconfirmed {
+        return best;
+    }
+    best.status = IcpStatus::Ambiguous;
+    let others: Vec<&IcpResult> = (ends.iter().map(|(r, _)| r))
+        .filter(|r| differs(&best, r, pixel_m))
+        .collect();
+    if let Some(extra) = spread(&best, &others) {
+        let info = best.information.as_mut().expect("spread needs information");
+        inflate(info, &extra);
+    }
+    best
 }
 
 /// `best` with the sliding places compared with it (result, closeness on
@@ -256,5 +288,49 @@ mod tests {
         assert_eq!(far.status, IcpStatus::Converged);
         assert_eq!(far.information.as_ref().unwrap().sigma[0], Some(0.05));
         assert_eq!(with_slid(at(0.0), vec![]).status, IcpStatus::Converged);
+    }
+
+    /// A winner its backward check did not confirm is ambiguous, with the
+    /// spread of every other place a start ended at, whatever its status or
+    /// cost (its own place and places within a pixel add nothing); a
+    /// confirmed one, or one without a check, is left as it is.
+    #[test]
+    fn an_unconfirmed_winner_carries_every_place_the_starts_reached() {
+        let checked = |confirms: bool| {
+            let mut r = at(0.0);
+            r.backward = Some(crate::icp::BackwardCheck {
+                shift_m: [0.0; 3],
+                rotation_deg: [0.0; 3],
+                status: IcpStatus::MaxIterations,
+                chi_square: Some(30.0),
+                beyond_noise: true,
+                confirms,
+            });
+            r
+        };
+        let mut sliding = at(20.0);
+        sliding.status = IcpStatus::MaxIterations;
+        let ends = vec![
+            (at(0.0), 0.3),
+            (at(0.2), 0.3),
+            (sliding, 0.9),
+            (at(6.0), 0.5),
+        ];
+        let chosen = unconfirmed(checked(false), &ends, 0.5);
+        assert_eq!(chosen.status, IcpStatus::Ambiguous);
+        assert_eq!(chosen.t_ref_moving.translation.x, 0.0);
+        // equal mixture of the winner and the two other places
+        let expected = (0.05f64.powi(2) + (400.0 + 36.0) / 3.0).sqrt();
+        let sigma = chosen.information.as_ref().unwrap().sigma;
+        assert!((sigma[0].unwrap() - expected).abs() < 1e-9, "{sigma:?}");
+        assert!((sigma[1].unwrap() - 0.05).abs() < 1e-9, "{sigma:?}");
+
+        let kept = unconfirmed(checked(true), &ends, 0.5);
+        assert_eq!(kept.status, IcpStatus::Converged);
+        assert_eq!(kept.information.as_ref().unwrap().sigma[0], Some(0.05));
+        assert_eq!(
+            unconfirmed(at(0.0), &ends, 0.5).status,
+            IcpStatus::Converged
+        );
     }
 }

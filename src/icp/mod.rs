@@ -14,7 +14,7 @@
 //! places re-scored on the samples they share), `choice` (the best of the
 //! starts' results; an ambiguous pair's spread joins its covariance), `restart`
 //! and `backward` (two checks of the answer whose gaps beyond the noise join
-//! its covariance).
+//! its covariance; an answer the backward run does not confirm is ambiguous).
 
 mod accelerate;
 pub mod associate;
@@ -49,7 +49,7 @@ use crate::fit::{DegeneracyRule, WallSnap};
 use crate::geo::Bounds;
 use crate::grid::{Grid, Pyramid};
 use crate::nn::{PlaneTable, WithPlanes, NORMAL_RADIUS_PX};
-use choice::{choose, slid_rivals};
+use choice::{choose, slid_rivals, unconfirmed};
 use iterate::Rules;
 use level::{start_level, Level};
 use start::{find_starts, moved_overlap, Start, Starts};
@@ -101,10 +101,11 @@ pub fn register<R: Pyramid, M: Pyramid>(
         .map(|t| (t.0.clone(), t.2))
         .collect();
     let (forward, own) = choose(tried, starts.ambiguity, starts.pixel_m);
-    let forward = slid_rivals(reference, moving, forward, own, ends, starts.pixel_m)?;
+    let forward = slid_rivals(reference, moving, forward, own, &ends, starts.pixel_m)?;
     let limits = (starts.pixel_m, starts.radius_m);
     let forward = restart::check_restarts(reference, moving, config, forward, limits);
     let result = check_backward(reference, moving, config, &starts, forward);
+    let result = unconfirmed(result, &ends, starts.pixel_m);
     let tau_m = config.tau_at(0, starts.pixel_m, starts.starts[0].cost_m);
     let mut result = heights::check_heights(reference, moving, result, tau_m, starts.pixel_m)?;
     if let Some(info) = result.information.as_mut() {

@@ -198,6 +198,10 @@ pub struct BackwardCheck {
     pub chi_square: Option<f64>,
     /// Beyond the chi-square's 0.999 quantile: the gap widened the sigmas.
     pub beyond_noise: bool,
+    /// The backward run settled where the forward answer is and measured
+    /// every direction the forward fit measured; false when it was still
+    /// sliding beyond the noise or lost a direction (`icp::backward`).
+    pub confirms: bool,
 }
 
 #[derive(Clone, Copy, Debug, Default, Serialize)]
