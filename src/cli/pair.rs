@@ -145,6 +145,9 @@ fn reason(r: &IcpResult) -> String {
         IcpStatus::Ambiguous if r.backward.is_some_and(|b| !b.confirms) => {
             "ambiguous: the backward check (the reference registered onto the moving DSM from this answer) does not confirm it".into()
         }
+        IcpStatus::Ambiguous if r.restart.is_some_and(|c| !c.confirms()) => {
+            "ambiguous: a restart a few pixels beside this answer ran off instead of returning to it".into()
+        }
         IcpStatus::Ambiguous => match &r.second_height {
             Some(h) => format!(
                 "ambiguous: {:.0} % of the overlap agrees on a height {:+.2} m from the answer (a changed building?)",
@@ -261,9 +264,10 @@ fn table(reference: &str, moving: &str, r: &IcpResult, pose: &CentredPose, secon
     if let Some(c) = &r.restart {
         let _ = writeln!(
             t,
-            "restarts    {} of {} ran, the farthest ended {:.3} m from the answer ({} beyond the noise{}){}",
+            "restarts    {} of {} ran{}, the farthest ended {:.3} m from the answer ({} beyond the noise{}){}",
             c.ran,
             c.tried,
+            if c.lost > 0 { format!(" ({} ran off: the answer is not confirmed)", c.lost) } else { String::new() },
             c.gap_m,
             c.beyond_noise,
             if c.beyond_noise > 0 { ", added to the sigmas" } else { "" },

@@ -30,9 +30,9 @@
 //! cost no higher, on the samples the two share ([`slid_rivals`]); within
 //! [`AMBIGUOUS_COST_RATIO`] there it is a rival like any other.
 //!
-//! A winner its backward check does not confirm (`icp::backward`) is
-//! `Ambiguous` too, with the spread of every place the starts ended at
-//! ([`unconfirmed`]).
+//! A winner its backward check or its restarts do not confirm
+//! (`icp::backward`, `icp::restart`) is `Ambiguous` too, with the spread of
+//! every place the starts ended at ([`unconfirmed`]).
 
 use nalgebra::{Matrix6, Point3, Vector3};
 
@@ -131,8 +131,9 @@ pub(super) fn slid_rivals<R: Pyramid, M: Pyramid>(
     Ok(with_slid(best, elsewhere))
 }
 
-/// `best`, converged or held, whose backward check did not confirm it
-/// (`BackwardCheck::confirms`): `Ambiguous`, with the spread of every other
+/// `best`, converged or held, whose backward check or restarts did not
+/// confirm it (`BackwardCheck::confirms`, `RestartCheck::confirms`):
+/// `Ambiguous`, with the spread of every other
 /// place where a start ended (`ends`: converged, held or still sliding,
 /// whatever its cost) added to its covariance. An unconfirmed answer is no
 /// better founded than those places: tile_2397 -> tile_2398 of the 50 x 50
@@ -144,7 +145,8 @@ pub(super) fn unconfirmed(
     ends: &[(IcpResult, f64)],
     pixel_m: f64,
 ) -> IcpResult {
-    let unconfirmed = best.backward.is_some_and(|b| !b.confirms);
+    let unconfirmed =
+        best.backward.is_some_and(|b| !b.confirms) || best.restart.is_some_and(|r| !r.confirms());
     if !best.status.is_converged_or_held() || !unconfirmed {
         return best;
     }
@@ -290,8 +292,8 @@ mod tests {
         assert_eq!(with_slid(at(0.0), vec![]).status, IcpStatus::Converged);
     }
 
-    /// A winner its backward check did not confirm is ambiguous, with the
-    /// spread of every other place a start ended at, whatever its status or
+    /// A winner its backward check (or a restart) did not confirm is
+    /// ambiguous, with the spread of every other place a start ended at, whatever its status or
     /// cost (its own place and places within a pixel add nothing); a
     /// confirmed one, or one without a check, is left as it is.
     #[test]
@@ -324,6 +326,19 @@ mod tests {
         let sigma = chosen.information.as_ref().unwrap().sigma;
         assert!((sigma[0].unwrap() - expected).abs() < 1e-9, "{sigma:?}");
         assert!((sigma[1].unwrap() - 0.05).abs() < 1e-9, "{sigma:?}");
+
+        // a restart that ran off does not confirm it either
+        let mut ran_off = at(0.0);
+        ran_off.restart = Some(crate::icp::RestartCheck {
+            tried: 4,
+            ran: 3,
+            lost: 1,
+            ..Default::default()
+        });
+        assert_eq!(
+            unconfirmed(ran_off, &ends, 0.5).status,
+            IcpStatus::Ambiguous
+        );
 
         let kept = unconfirmed(checked(true), &ends, 0.5);
         assert_eq!(kept.status, IcpStatus::Converged);

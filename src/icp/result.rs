@@ -144,6 +144,10 @@ pub struct RestartCheck {
     pub tried: usize,
     /// Restarts that ran to an answer.
     pub ran: usize,
+    /// Restarts that ran off: diverged (moved beyond the search radius, or
+    /// their matches collapsed) or kept too few matches. Under a minimum the
+    /// loop returns to from a few pixels away there are none.
+    pub lost: usize,
     /// Restarts whose gap joined the covariance (beyond the noise, or beyond
     /// the loop's convergence scatter).
     pub widened: usize,
@@ -159,6 +163,11 @@ impl RestartCheck {
         self.widened > 0 || self.moved_m > 0.0
     }
 
+    /// No restart ran off: the answer is a place the loop returns to.
+    pub fn confirms(&self) -> bool {
+        self.lost == 0
+    }
+
     /// This check followed by `later` (run from this one's answer).
     pub fn and(self, later: &RestartCheck) -> RestartCheck {
         RestartCheck {
@@ -166,6 +175,7 @@ impl RestartCheck {
             beyond_noise: self.beyond_noise + later.beyond_noise,
             tried: self.tried + later.tried,
             ran: self.ran + later.ran,
+            lost: self.lost + later.lost,
             widened: self.widened + later.widened,
             moved_m: self.moved_m.max(later.moved_m),
         }

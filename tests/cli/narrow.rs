@@ -61,26 +61,27 @@ fn a_platform_over_most_of_a_narrow_overlap_makes_the_height_ambiguous() {
     );
 }
 
-/// tile_159 -> tile_160 of the same grid: the best place within half their
-/// 19 m strip lay on its edge, the radius doubled to 38 m and the pair
-/// converged 21 m off with metre sigmas (20 sigma), a corner landing on a
-/// corner. The grid's clear pairs lie within 5 m: in a 4 x 4 block around
-/// the pair, `align` judges that answer `ambiguous` (its edge is not
-/// `converged` and its DSM not placed by it) and says so.
+/// tile_1891 -> tile_1892 of the same grid: the best place within half their
+/// 19 m strip lay on its edge, the radius doubled to 19 m and the pair
+/// converged 12 m off at 4 sigma, every check of the pair confirming it. The
+/// grid's clear pairs lie within 5 m: in a 4 x 4 block around the pair,
+/// `align` judges that answer `ambiguous` (its edge is not `converged` and
+/// its DSM not placed by it) and says so. (tile_159 -> tile_160, 21 m off,
+/// was this test's pair until its restarts judged it on its own.)
 #[test]
 fn a_converged_answer_beyond_the_collections_offsets_is_not_trusted() {
     let temp = tempfile::tempdir().unwrap();
     let dir = temp.path();
     let tiles = dir.join("tiles");
     crate::util::grid_tiles(&tiles, "50", "128", "5", "centre");
-    let block: Vec<_> = (2..6)
-        .flat_map(|r| (8..12).map(move |c| r * 50 + c))
+    let block: Vec<_> = (36..40)
+        .flat_map(|r| (40..44).map(move |c| r * 50 + c))
         .map(|k| tiles.join(format!("tile_{k}.tif")))
         .collect();
     let store = dir.join("b.zarr");
     crate::util::ingest(&block, &store);
-    let (_, v) = pair_json(&store, "tile_159", "tile_160");
-    let error = crate::util::shift_error(&tiles.join("truth.json"), "tile_159", "tile_160", &v);
+    let (_, v) = pair_json(&store, "tile_1891", "tile_1892");
+    let error = crate::util::shift_error(&tiles.join("truth.json"), "tile_1891", "tile_1892", &v);
     assert!(
         v["status"] == "converged" && error[0].hypot(error[1]) > 10.0,
         "the pair no longer converges far off alone: {error:?} {v}"
@@ -96,13 +97,33 @@ fn a_converged_answer_beyond_the_collections_offsets_is_not_trusted() {
     let doc: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&poses).unwrap()).unwrap();
     let edge = (doc["edges"].as_array().unwrap().iter())
-        .find(|e| e["i"] == "tile_159" && e["j"] == "tile_160")
+        .find(|e| e["i"] == "tile_1891" && e["j"] == "tile_1892")
         .unwrap();
     assert_eq!(edge["converged"], false, "{edge}");
     let pose = (doc["poses"].as_array().unwrap().iter())
-        .find(|p| p["id"] == "tile_160")
+        .find(|p| p["id"] == "tile_1892")
         .unwrap();
-    assert_eq!(pose["status"], "unconstrained", "{pose}");
+    assert!(
+        pose["status"] == "weak" || pose["status"] == "unconstrained",
+        "{pose}"
+    );
+}
+
+/// tile_159 -> tile_160 (fixtures/synth/README.md): the search widened to
+/// 38 m and the one start of ten that converged put tile_160 21 m off with
+/// metre sigmas (20 sigma), backward check confirming. Three of its four
+/// restarts, pushed a few pixels aside, ran off instead of returning: the
+/// answer is no basin, the pair is ambiguous and exits 1.
+#[test]
+fn an_answer_its_restarts_run_off_from_is_ambiguous() {
+    let (code, v, error, _) = pair("tile_159", "tile_160");
+    assert!(
+        error[1].abs() > 10.0,
+        "the pair now finds its place: {error:?} {v}"
+    );
+    assert!(v["result"]["restart"]["lost"].as_u64().unwrap() > 0, "{v}");
+    assert_eq!(v["status"], "ambiguous", "{v}");
+    assert_eq!(code, Some(1), "{v}");
 }
 
 /// Two 128 m tiles at 0.5 m sharing a 38 m strip, the second 72 m off
