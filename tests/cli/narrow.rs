@@ -19,6 +19,26 @@ fn pair(reference: &str, moving: &str) -> (Option<i32>, serde_json::Value, [f64;
     (code, v, error, sigma)
 }
 
+/// `pair` on two tiles of a collection `dsmgen tiles` generates with `args`
+/// (whitespace-separated): what [`pair`] returns.
+fn generated_pair(
+    args: &str,
+    reference: &str,
+    moving: &str,
+) -> (Option<i32>, serde_json::Value, [f64; 3], [f64; 3]) {
+    let temp = tempfile::tempdir().unwrap();
+    let tiles = temp.path().join("tiles");
+    let args: Vec<&str> = args.split_whitespace().collect();
+    crate::util::dsmgen_tiles(&args, &tiles);
+    let tif = |id: &str| tiles.join(format!("{id}.tif"));
+    let store = temp.path().join("s.zarr");
+    crate::util::ingest(&[tif(reference), tif(moving)], &store);
+    let (code, v) = pair_json(&store, reference, moving);
+    let error = crate::util::shift_error(&tiles.join("truth.json"), reference, moving, &v);
+    let sigma = shift_and_sigma(&v).1;
+    (code, v, error, sigma)
+}
+
 /// tile_941 slid 15 m along its strip onto a smooth 8 m of field and was
 /// reported to 0.4 m. The data favour that place (on the samples both places
 /// share, the truth's heights differ by 1.2 m NMAD, a changed area, the slid
@@ -136,19 +156,10 @@ fn an_answer_its_restarts_run_off_from_is_ambiguous() {
 /// sigmas say it does not know the place to tens of metres.
 #[test]
 fn a_converged_answer_that_other_starts_slid_past_is_ambiguous() {
-    let temp = tempfile::tempdir().unwrap();
-    let tiles = temp.path().join("tiles");
     let args = "--layout chain --count 2 --size 256 --gsd 0.5 --overlap 0.3 --render centre \
                 --max-shift-m 50 --relief 0.3 --buildings 0.55 --lakes 0.2 --water flat \
                 --noise 0.3 --seed 3331";
-    let args: Vec<&str> = args.split_whitespace().collect();
-    crate::util::dsmgen_tiles(&args, &tiles);
-    let tif = |id: &str| tiles.join(format!("{id}.tif"));
-    let store = temp.path().join("s.zarr");
-    crate::util::ingest(&[tif("tile_00"), tif("tile_01")], &store);
-    let (code, v) = pair_json(&store, "tile_00", "tile_01");
-    let error = crate::util::shift_error(&tiles.join("truth.json"), "tile_00", "tile_01", &v);
-    let sigma = shift_and_sigma(&v).1;
+    let (code, v, error, sigma) = generated_pair(args, "tile_00", "tile_01");
     assert!(
         error[0].hypot(error[1]) > 10.0,
         "the pair now finds its place: {error:?} {v}"
@@ -167,18 +178,10 @@ fn a_converged_answer_that_other_starts_slid_past_is_ambiguous() {
 /// is ambiguous and exits 1.
 #[test]
 fn an_answer_the_backward_check_slides_away_from_is_ambiguous() {
-    let temp = tempfile::tempdir().unwrap();
-    let tiles = temp.path().join("tiles");
     let args = "--layout grid --rows 2 --cols 2 --size 256 --gsd 0.5 --overlap 0.25 \
                 --render lidar-max --max-shift-m 50 --dz-offset 150 --relief 0.3 \
                 --buildings 0.55 --lakes 0.5 --water flat --noise 0.3 --seed 7833";
-    let args: Vec<&str> = args.split_whitespace().collect();
-    crate::util::dsmgen_tiles(&args, &tiles);
-    let tif = |id: &str| tiles.join(format!("{id}.tif"));
-    let store = temp.path().join("s.zarr");
-    crate::util::ingest(&[tif("tile_01"), tif("tile_02")], &store);
-    let (code, v) = pair_json(&store, "tile_01", "tile_02");
-    let error = crate::util::shift_error(&tiles.join("truth.json"), "tile_01", "tile_02", &v);
+    let (code, v, error, _) = generated_pair(args, "tile_01", "tile_02");
     assert!(
         error[0].hypot(error[1]) > 10.0,
         "the pair now finds its place: {error:?} {v}"
