@@ -228,7 +228,7 @@ pub(super) fn range_projector(c: &Matrix6<f64>) -> Matrix6<f64> {
 
 /// The pseudo-inverse of a covariance over the directions it gives a
 /// variance, and their number.
-fn pseudo_inverse(c: &Matrix6<f64>) -> (Matrix6<f64>, usize) {
+pub(super) fn pseudo_inverse(c: &Matrix6<f64>) -> (Matrix6<f64>, usize) {
     let eig = c.symmetric_eigen();
     let max = eig.eigenvalues.amax();
     let mut inv = Matrix6::zeros();

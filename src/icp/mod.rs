@@ -24,6 +24,7 @@ mod compare;
 pub mod config;
 pub mod floor;
 mod heights;
+mod held;
 mod iterate;
 mod level;
 mod restart;
@@ -112,10 +113,14 @@ pub fn register<R: Pyramid, M: Pyramid>(
         floor::apply(info, starts.pixel_m, config.sigma_floor_px);
     }
     let shift = result.centred().shift_m;
-    result.search = starts.ambiguity.is_some().then(|| SearchReach {
+    let offset_m = shift[0].hypot(shift[1]);
+    if let Some(info) = result.information.as_mut() {
+        held::spread_held(info, config.model, starts.radius_m, offset_m);
+    }
+    result.search = starts.ambiguity.is_some().then_some(SearchReach {
         cut_m: starts.cut_m,
         reached_m: starts.radius_m,
-        offset_m: shift[0].hypot(shift[1]),
+        offset_m,
     });
     Ok(result)
 }

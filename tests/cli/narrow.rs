@@ -212,3 +212,31 @@ fn an_answer_the_backward_check_cannot_fix_is_ambiguous() {
         );
     }
 }
+
+/// A corner pair of 2 m lidar-mean tiles on sloping ground (case 149 of
+/// `pair_battery.py --narrow`): the corner holds too little to fix x and y,
+/// so the fit holds them where the search put it, 37 m from the truth, and
+/// measures the height there. The ground slopes, so that height is 1.4 m off;
+/// it was reported to 0.07 m (20 sigma). The held start's error along the
+/// slope now joins the height's sigma: within 3 sigma, x and y still held.
+#[test]
+fn a_height_measured_at_a_held_start_carries_the_starts_error() {
+    let args = "--layout grid --rows 2 --cols 2 --size 256 --gsd 2.0 --overlap 0.25 \
+                --render lidar-mean --max-shift-m 50 --dz-offset 0 --relief 1 \
+                --buildings 0.0 --lakes 0.2 --water nan --noise 1.0 --seed 2637";
+    let (code, v, error, sigma) = generated_pair(args, "tile_00", "tile_03");
+    assert_eq!(v["status"], "degenerate", "{error:?} {v}");
+    assert!(
+        error[0].hypot(error[1]) > 10.0 && error[2].abs() > 0.5,
+        "the pair now finds its place: {error:?} {v}"
+    );
+    assert!(
+        sigma[0].is_infinite() && sigma[1].is_infinite(),
+        "x, y held: {v}"
+    );
+    assert!(
+        error[2].abs() <= 3.0 * sigma[2],
+        "{error:?} against {sigma:?}: {v}"
+    );
+    assert_eq!(code, Some(0), "degenerate with its held axes said: {v}");
+}
