@@ -14,7 +14,8 @@
 //! places re-scored on the samples they share), `choice` (the best of the
 //! starts' results; an ambiguous pair's spread joins its covariance), `restart`
 //! and `backward` (two checks of the answer whose gaps beyond the noise join
-//! its covariance; an answer the backward run does not confirm is ambiguous).
+//! its covariance; an answer the backward run does not confirm is ambiguous),
+//! `held` (what a held start's error does to the measured axes).
 
 mod accelerate;
 pub mod associate;
