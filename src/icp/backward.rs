@@ -200,8 +200,8 @@ fn confirms(forward: &IcpResult, backward: &IcpResult, beyond_noise: bool) -> bo
 /// on the directions it measures (held directions keep no information);
 /// its information and standard errors follow.
 pub(crate) fn inflate(info: &mut FitInformation, extra: &Matrix6<f64>) {
-    let range = range_projector(&info.covariance_6x6);
-    info.covariance_6x6 += range * extra * range;
+    let range = measured_projector(&info.covariance_6x6, info.radius_m);
+    info.covariance_6x6 += range * extra * range.transpose();
     info.covariance_6x6 = (info.covariance_6x6 + info.covariance_6x6.transpose()) * 0.5;
     info.info_6x6 = pseudo_inverse(&info.covariance_6x6).0;
     for k in 0..6 {
@@ -211,11 +211,25 @@ pub(crate) fn inflate(info: &mut FitInformation, extra: &Matrix6<f64>) {
     }
 }
 
+/// The projector onto the directions covariance `c` measures, orthogonal in
+/// metres (rotations as arcs at the points' RMS radius `radius_m`, as the
+/// degeneracy test compares them): in mixed units a held direction that mixes
+/// a shift with a turn leaves a measured direction that mixes them the other
+/// way, and a gap along the shift poured into it reads as a turn of radians
+/// (a backward gap of 11.7 m along a held x gave a pitch sigma of 228 deg).
+/// Applied to a physical vector; a covariance E maps to P E P^T.
+pub(super) fn measured_projector(c: &Matrix6<f64>, radius_m: f64) -> Matrix6<f64> {
+    let r = radius_m.max(1e-6);
+    let s = Matrix6::from_diagonal(&Vector6::new(1.0, 1.0, 1.0, r, r, r));
+    let s_inv = Matrix6::from_diagonal(&Vector6::new(1.0, 1.0, 1.0, 1.0 / r, 1.0 / r, 1.0 / r));
+    s_inv * range_projector(&(s * c * s)) * s
+}
+
 /// Relative eigenvalue below which a covariance direction counts as empty.
 const EMPTY: f64 = 1e-12;
 
 /// The orthogonal projector onto the directions `c` gives a variance.
-pub(super) fn range_projector(c: &Matrix6<f64>) -> Matrix6<f64> {
+fn range_projector(c: &Matrix6<f64>) -> Matrix6<f64> {
     let eig = c.symmetric_eigen();
     let max = eig.eigenvalues.amax();
     let mut p = Matrix6::zeros();
@@ -416,5 +430,40 @@ mod tests {
         assert!((info.info_6x6[(0, 0)] - 25.0).abs() < 1e-9);
         assert_eq!(info.info_6x6[(2, 2)], 0.0);
         assert_eq!(info.covariance_6x6[(2, 2)], 0.0);
+    }
+
+    /// case 154 of the narrow battery: x held along a direction that turns
+    /// the pitch by 0.005 rad per metre (at a 20 m radius, a tenth of an
+    /// arc per metre: mostly x). A backward gap of 11.7 m in x must stay
+    /// (nearly all) out of the measured pitch; projected in mixed units it
+    /// read as a pitch sigma of 228 deg.
+    #[test]
+    fn a_gap_along_a_held_shift_does_not_pour_into_a_turn() {
+        let held = Vector6::new(1.0, 0.0, 0.0, 0.0, -0.005, 0.0);
+        let others = [
+            Vector6::new(0.0, 1.0, 0.0, 0.0, 0.0, 0.0),
+            Vector6::new(0.0, 0.0, 1.0, 0.0, 0.0, 0.0),
+            Vector6::new(0.0, 0.0, 0.0, 1.0, 0.0, 0.0),
+            Vector6::new(0.005, 0.0, 0.0, 0.0, 1.0, 0.0),
+            Vector6::new(0.0, 0.0, 0.0, 0.0, 0.0, 1.0),
+        ];
+        let variances = [0.01, 1e-4, 1e-7, 1e-7, 1e-7];
+        let mut c = Matrix6::zeros();
+        for (v, var) in others.iter().zip(variances) {
+            c += v * v.transpose() * var;
+        }
+        assert!((c * held).norm() < 1e-12, "held is the null direction");
+        let mut info = information(c, Vector3::zeros());
+        info.radius_m = 20.0;
+        info.sigma = std::array::from_fn(|k| (k != 0).then(|| standard_error(&c, k)));
+        info.degenerate = vec![Axis::X];
+        let gap = Vector6::new(11.7, 0.0, 0.0, 0.0, 0.0, 0.0);
+        inflate(&mut info, &(gap * gap.transpose()));
+        let pitch_deg = info.sigma[4].unwrap();
+        assert!(pitch_deg < 0.5, "pitch sigma {pitch_deg} deg");
+        assert!(
+            (info.covariance_6x6 * held).norm() < 1e-9,
+            "held stays held"
+        );
     }
 }

@@ -34,9 +34,9 @@
 //! at 21 sigma); on 2,700 converged pairs of 128 m tiles and the batteries'
 //! small collections, to none.
 
-use nalgebra::{Isometry3, Matrix2, Matrix6, Translation3, UnitQuaternion, Vector3, Vector6};
+use nalgebra::{Isometry3, Matrix2, Matrix6, Translation3, UnitQuaternion, Vector3};
 
-use super::backward::{inflate, range_projector, Disagreement, GapTest};
+use super::backward::{inflate, measured_projector, Disagreement, GapTest};
 use super::config::LADDER_SAMPLES;
 use super::level::full_resolution;
 use super::{IcpConfig, IcpError, IcpResult, IcpStatus, RestartCheck};
@@ -288,13 +288,7 @@ fn beyond_noise(fit: &IcpResult, other: &IcpResult) -> bool {
 /// nothing about where the minimum lies. None without its information.
 fn measured_gap(fit: &IcpResult, restarted: &IcpResult, at: &Vector3<f64>) -> Option<Disagreement> {
     let info = restarted.information.as_ref()?;
-    // projected in metres (rotations as arcs at the points' RMS radius): a
-    // held direction mixing a shift and a turn would otherwise be judged in
-    // mixed units
-    let r = info.radius_m.max(1e-6);
-    let s = Matrix6::from_diagonal(&Vector6::new(1.0, 1.0, 1.0, r, r, r));
-    let s_inv = Matrix6::from_diagonal(&Vector6::new(1.0, 1.0, 1.0, 1.0 / r, 1.0 / r, 1.0 / r));
-    let range = s_inv * range_projector(&(s * info.covariance_6x6 * s)) * s;
+    let range = measured_projector(&info.covariance_6x6, info.radius_m);
     let g = range * gap(&fit.t_ref_moving, &restarted.t_ref_moving, at).gap();
     Some(Disagreement {
         shift_m: g.fixed_rows::<3>(0).into_owned(),

@@ -240,3 +240,21 @@ fn a_height_measured_at_a_held_start_carries_the_starts_error() {
     );
     assert_eq!(code, Some(0), "degenerate with its held axes said: {v}");
 }
+
+/// Case 154 of `pair_battery.py --narrow` (2 m smooth tiles, a 77 m strip):
+/// x is held, and the backward registration ends 11.7 m away along it. That
+/// gap says nothing about the measured directions; projected in mixed units
+/// (metres with radians) it read as a pitch sigma of 228 deg. Now every
+/// rotation sigma stays within a degree.
+#[test]
+fn a_gap_along_a_held_direction_leaves_the_rotations_alone() {
+    let args = "--layout grid --rows 2 --cols 2 --size 256 --gsd 2.0 --overlap 0.15 \
+                --render smooth --max-shift-m 50 --dz-offset 0 --relief 0.3 \
+                --buildings 0.1 --lakes 0.2 --water nan --noise 0.3 --seed 9936";
+    let (_, v, _, _) = generated_pair(args, "tile_02", "tile_03");
+    assert_eq!(v["status"], "degenerate", "{v}");
+    for k in 0..3 {
+        let sigma = v["sigma"]["rotation_deg"][k].as_f64().unwrap();
+        assert!(sigma < 1.0, "rotation {k}: sigma {sigma} deg: {v}");
+    }
+}
