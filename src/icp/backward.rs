@@ -200,7 +200,7 @@ fn confirms(forward: &IcpResult, backward: &IcpResult, beyond_noise: bool) -> bo
 /// on the directions it measures (held directions keep no information);
 /// its information and standard errors follow.
 pub(crate) fn inflate(info: &mut FitInformation, extra: &Matrix6<f64>) {
-    let range = measured_projector(&info.covariance_6x6, info.radius_m);
+    let range = projector_for_extras(&info.covariance_6x6, info.radius_m);
     info.covariance_6x6 += range * extra * range.transpose();
     info.covariance_6x6 = (info.covariance_6x6 + info.covariance_6x6.transpose()) * 0.5;
     info.info_6x6 = pseudo_inverse(&info.covariance_6x6).0;
@@ -225,19 +225,40 @@ pub(super) fn measured_projector(c: &Matrix6<f64>, radius_m: f64) -> Matrix6<f64
     s_inv * range_projector(&(s * c * s)) * s
 }
 
+/// The projector [`inflate`] and the gridding floor put their extras
+/// through: [`measured_projector`] where `c` holds a direction; where it
+/// holds none, the projector onto all of its eigen-directions (the identity
+/// up to rounding, computed as it always was, so that fits with nothing held
+/// keep their numbers to the last bit).
+pub(super) fn projector_for_extras(c: &Matrix6<f64>, radius_m: f64) -> Matrix6<f64> {
+    let (all, rank) = range_projector_and_rank(c);
+    if rank == 6 {
+        all
+    } else {
+        measured_projector(c, radius_m)
+    }
+}
+
 /// Relative eigenvalue below which a covariance direction counts as empty.
 const EMPTY: f64 = 1e-12;
 
 /// The orthogonal projector onto the directions `c` gives a variance.
 fn range_projector(c: &Matrix6<f64>) -> Matrix6<f64> {
+    range_projector_and_rank(c).0
+}
+
+/// [`range_projector`] and the number of directions it keeps.
+fn range_projector_and_rank(c: &Matrix6<f64>) -> (Matrix6<f64>, usize) {
     let eig = c.symmetric_eigen();
     let max = eig.eigenvalues.amax();
     let mut p = Matrix6::zeros();
+    let mut rank = 0;
     for k in (0..6).filter(|&k| max > 0.0 && eig.eigenvalues[k] > EMPTY * max) {
         let v = eig.eigenvectors.column(k);
         p += v * v.transpose();
+        rank += 1;
     }
-    p
+    (p, rank)
 }
 
 /// The pseudo-inverse of a covariance over the directions it gives a

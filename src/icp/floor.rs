@@ -15,7 +15,7 @@
 //! 1 km chain's worst DSM 4 mm worse and the 20 x 20 grid's median 6 mm) and
 //! each pose's reported shift sigma gets its DSM's half ([`pose_floor_m`]).
 
-use super::backward::measured_projector;
+use super::backward::projector_for_extras;
 use crate::fit::FitInformation;
 use nalgebra::{Matrix6, Vector6};
 
@@ -61,7 +61,7 @@ pub fn gridding_sd(arc_m: f64, radius_m: f64) -> Vector6<f64> {
 /// directions stay without variance).
 pub fn apply(info: &mut FitInformation, pixel_m: f64, k_px: f64) {
     if k_px > 0.0 && pixel_m > 0.0 {
-        let range = measured_projector(&info.covariance_6x6, info.radius_m);
+        let range = projector_for_extras(&info.covariance_6x6, info.radius_m);
         let g = range * gridding_covariance(info, pixel_m, k_px) * range.transpose();
         info.gridding_6x6 = (g + g.transpose()) * 0.5;
     }
