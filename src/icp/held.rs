@@ -12,8 +12,9 @@
 //! answer). [`spread_held`] adds that variance along each held direction,
 //! scaled to unit horizontal motion: the measured axes then carry what the held
 //! start can do to them. The held axes stay unreported (no sigma), and on flat
-//! ground (s = 0) nothing changes. Degenerate pairs give no graph edge; this is
-//! what `pair` reports.
+//! ground (s = 0) nothing changes. A degenerate pair gives no graph edge (this
+//! is what `pair` reports); an ambiguous one with held axes enters the graph
+//! at the unreliable weight with this covariance.
 
 use nalgebra::{DMatrix, Matrix6, SMatrix};
 
