@@ -8,15 +8,44 @@ use crate::util::{fixtures, pair_json, shift_and_sigma};
 /// error (estimate minus truth, metres) and reported sigma of the shift at
 /// the fit's centre, per axis.
 fn pair(reference: &str, moving: &str) -> (Option<i32>, serde_json::Value, [f64; 3], [f64; 3]) {
-    let data = fixtures().join("synth/narrow64");
     let dir = tempfile::tempdir().unwrap();
-    let store = dir.path().join("s.zarr");
-    let tif = |id: &str| data.join(format!("{id}.tif"));
-    crate::util::ingest(&[tif(reference), tif(moving)], &store);
-    let (code, v) = pair_json(&store, reference, moving);
-    let error = crate::util::shift_error(&data.join("truth.json"), reference, moving, &v);
+    pair_in(
+        &fixtures().join("synth/narrow64"),
+        &dir.path().join("s.zarr"),
+        reference,
+        moving,
+    )
+}
+
+/// [`pair`] on two tiles of the folder `tiles` (with its truth.json),
+/// ingested into `store`.
+fn pair_in(
+    tiles: &std::path::Path,
+    store: &std::path::Path,
+    reference: &str,
+    moving: &str,
+) -> (Option<i32>, serde_json::Value, [f64; 3], [f64; 3]) {
+    let tif = |id: &str| tiles.join(format!("{id}.tif"));
+    crate::util::ingest(&[tif(reference), tif(moving)], store);
+    let (code, v) = pair_json(store, reference, moving);
+    let error = crate::util::shift_error(&tiles.join("truth.json"), reference, moving, &v);
     let sigma = shift_and_sigma(&v).1;
     (code, v, error, sigma)
+}
+
+/// Asserts that each of the shift `axes` (0 x, 1 y, 2 z) is within 3 sigma.
+fn within_3_sigma(
+    axes: std::ops::Range<usize>,
+    error: &[f64; 3],
+    sigma: &[f64; 3],
+    v: &serde_json::Value,
+) {
+    for k in axes {
+        assert!(
+            error[k].abs() <= 3.0 * sigma[k],
+            "axis {k}: {error:?} against {sigma:?}: {v}"
+        );
+    }
 }
 
 /// `pair` on two tiles of a collection `dsmgen tiles` generates with `args`
@@ -30,13 +59,7 @@ fn generated_pair(
     let tiles = temp.path().join("tiles");
     let args: Vec<&str> = args.split_whitespace().collect();
     crate::util::dsmgen_tiles(&args, &tiles);
-    let tif = |id: &str| tiles.join(format!("{id}.tif"));
-    let store = temp.path().join("s.zarr");
-    crate::util::ingest(&[tif(reference), tif(moving)], &store);
-    let (code, v) = pair_json(&store, reference, moving);
-    let error = crate::util::shift_error(&tiles.join("truth.json"), reference, moving, &v);
-    let sigma = shift_and_sigma(&v).1;
-    (code, v, error, sigma)
+    pair_in(&tiles, &temp.path().join("s.zarr"), reference, moving)
 }
 
 /// tile_941 slid 15 m along its strip onto a smooth 8 m of field and was
@@ -49,12 +72,7 @@ fn generated_pair(
 #[test]
 fn a_fit_that_slid_along_a_narrow_overlap_carries_the_slide_in_its_sigmas() {
     let (code, v, error, sigma) = pair("tile_940", "tile_941");
-    for k in 0..3 {
-        assert!(
-            error[k].abs() <= 3.0 * sigma[k],
-            "{error:?} against {sigma:?}: {v}"
-        );
-    }
+    within_3_sigma(0..3, &error, &sigma, &v);
     if error.iter().any(|e| e.abs() > 2.0) {
         assert_eq!(code, Some(1), "metres off must not exit 0: {v}");
         assert_eq!(v["status"], "ambiguous");
@@ -75,10 +93,7 @@ fn a_platform_over_most_of_a_narrow_overlap_makes_the_height_ambiguous() {
     assert!(second["share"].as_f64().unwrap() >= 0.2, "{second}");
     let gap = second["gap_m"].as_f64().unwrap();
     assert!((2.0..5.0).contains(&gap.abs()), "{second}");
-    assert!(
-        error[2].abs() <= 3.0 * sigma[2],
-        "{error:?} against {sigma:?}"
-    );
+    within_3_sigma(2..3, &error, &sigma, &v);
 }
 
 /// tile_1891 -> tile_1892 of the same grid: the best place within half their
@@ -205,12 +220,7 @@ fn an_answer_the_backward_check_cannot_fix_is_ambiguous() {
     assert_eq!(v["result"]["backward"]["confirms"], false, "{v}");
     assert_eq!(v["status"], "ambiguous", "{v}");
     assert_eq!(code, Some(1), "{v}");
-    for k in 0..3 {
-        assert!(
-            error[k].abs() <= 3.0 * sigma[k],
-            "{error:?} against {sigma:?}: {v}"
-        );
-    }
+    within_3_sigma(0..3, &error, &sigma, &v);
 }
 
 /// A corner pair of 2 m lidar-mean tiles on sloping ground (case 149 of
@@ -234,10 +244,7 @@ fn a_height_measured_at_a_held_start_carries_the_starts_error() {
         sigma[0].is_infinite() && sigma[1].is_infinite(),
         "x, y held: {v}"
     );
-    assert!(
-        error[2].abs() <= 3.0 * sigma[2],
-        "{error:?} against {sigma:?}: {v}"
-    );
+    within_3_sigma(2..3, &error, &sigma, &v);
     assert_eq!(code, Some(0), "degenerate with its held axes said: {v}");
 }
 
