@@ -185,17 +185,24 @@ pub fn weights_warning(weights: &WeightsUsed, tree: bool) -> Option<String> {
 }
 
 /// A pose's sigma with its DSM's share of the gridding floor on its shift
-/// ([`crate::icp::floor::pose_floor_m`]): the graph weighs the fits' own
+/// and rotation ([`crate::icp::floor::pose_floor_m`],
+/// [`crate::icp::floor::pose_floor_rad`]): the graph weighs the fits' own
 /// covariances, and each DSM's placement error is shared by all its pairs.
 fn with_gridding_floor(
     mut sigma: NodeSigma,
     dsm: &crate::store::catalog::DsmMeta,
     config: &AlignConfig,
 ) -> NodeSigma {
+    use crate::icp::floor::{footprint_radius_m, pose_floor_m, pose_floor_rad};
     let pixel_m = dsm.geotransform.pixel_m();
-    let floor = crate::icp::floor::pose_floor_m(pixel_m, config.pipeline.icp.sigma_floor_px);
-    for (s, f) in sigma.shift_m.iter_mut().zip(floor) {
+    let k_px = config.pipeline.icp.sigma_floor_px;
+    for (s, f) in sigma.shift_m.iter_mut().zip(pose_floor_m(pixel_m, k_px)) {
         *s = s.hypot(f);
+    }
+    let radius_m = footprint_radius_m(dsm.footprint.width(), dsm.footprint.height());
+    let turn = pose_floor_rad(pixel_m, k_px, radius_m);
+    for (s, f) in sigma.rotation_deg.iter_mut().zip(turn) {
+        *s = s.hypot(f.to_degrees());
     }
     sigma
 }

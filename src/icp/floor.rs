@@ -13,7 +13,12 @@
 //! all of its pairs and consistent around every cycle, so the graph weighs the
 //! fit's own covariance (weighing the floor with the yaw share at 1 made the
 //! 1 km chain's worst DSM 4 mm worse and the 20 x 20 grid's median 6 mm) and
-//! each pose's reported shift sigma gets its DSM's half ([`pose_floor_m`]).
+//! each pose's reported sigmas get its DSM's half: on the shift
+//! ([`pose_floor_m`]) and, as arcs over the DSM's own footprint, on the
+//! rotation ([`pose_floor_rad`]). Without the rotation's half, two DSMs that
+//! know their relative yaw from their one pair alone (a chain of two 2 km
+//! tiles) reported yaw sigmas of 0.0007 deg for errors of 0.0033 deg: the
+//! pair's own yaw sigma without its floor, split between the two.
 
 use super::backward::projector_for_extras;
 use crate::fit::FitInformation;
@@ -74,6 +79,20 @@ pub fn pose_floor_m(pixel_m: f64, k_px: f64) -> [f64; 3] {
     [h, h, HEIGHT_SHARE * h]
 }
 
+/// One DSM's share of the floor on roll, pitch and yaw (radians): half the
+/// variance a pair's floor puts on its rotations, as arcs at `radius_m`, the
+/// RMS radius of the DSM's footprint about its centre ([`footprint_radius_m`]).
+pub fn pose_floor_rad(pixel_m: f64, k_px: f64, radius_m: f64) -> [f64; 3] {
+    let sd = gridding_sd(k_px * pixel_m / std::f64::consts::SQRT_2, radius_m);
+    [sd[3], sd[4], sd[5]]
+}
+
+/// The RMS distance of a `width_m` x `height_m` rectangle's points from its
+/// centre.
+pub fn footprint_radius_m(width_m: f64, height_m: f64) -> f64 {
+    ((width_m * width_m + height_m * height_m) / 12.0).sqrt()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -130,6 +149,26 @@ mod tests {
         assert!((2.0 * f[0] * f[0] - 0.025f64 * 0.025).abs() < 1e-15);
         assert_eq!(f[0], f[1]);
         assert!((f[2] - HEIGHT_SHARE * f[0]).abs() < 1e-15);
+    }
+
+    #[test]
+    fn a_dsm_carries_half_the_pair_variance_of_rotation_over_its_footprint() {
+        // a pair whose points lie at the DSM's own RMS radius: each DSM half its variance
+        let radius_m = footprint_radius_m(2048.0, 2048.0);
+        assert!((radius_m - 2048.0 / 6f64.sqrt()).abs() < 1e-9);
+        let pair = gridding_sd(0.05 * 2.0, radius_m);
+        let dsm = pose_floor_rad(2.0, 0.05, radius_m);
+        for (k, d) in dsm.iter().enumerate() {
+            assert!(
+                (2.0 * d * d - pair[3 + k] * pair[3 + k]).abs() < 1e-18,
+                "{k}"
+            );
+        }
+        // 2 km DSMs at 2 m: 0.0025 deg of yaw each (docs/measurements.md,
+        // "A DSM's rotation sigma without its share of the floor")
+        let yaw_deg = dsm[2].to_degrees();
+        assert!((yaw_deg - 0.0025).abs() < 2e-4, "{yaw_deg}");
+        assert_eq!(pose_floor_rad(2.0, 0.0, radius_m), [0.0; 3]);
     }
 
     #[test]

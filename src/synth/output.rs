@@ -156,6 +156,13 @@ pub fn validate(p: &TileSetParams) -> Result<(), SynthError> {
     if !(p.gsd_m > 0.0 && p.gsd_m.is_finite()) {
         return bad(format!("gsd {} m must be positive", p.gsd_m));
     }
+    let factor = p.odd_gsd_factor;
+    if factor == 0 || !p.size_px.is_multiple_of(factor) || p.size_px / factor < 16 {
+        return bad(format!(
+            "odd tiles' pixel factor {factor} must divide the tile size {} px and leave 16 px",
+            p.size_px
+        ));
+    }
     if !(0.0..0.95).contains(&p.overlap) {
         return bad(format!("overlap {} must be in [0, 0.95)", p.overlap));
     }

@@ -58,3 +58,16 @@ fn bad_point_density_is_refused_with_exit_2() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("--points-per-px"), "{err}");
 }
+
+#[test]
+fn a_pixel_factor_that_does_not_divide_the_tile_is_refused_with_exit_2() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_dsmgen"))
+        .args(["tiles", "--size", "256", "--odd-gsd-factor", "3", "--out"])
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("pixel factor 3"), "{err}");
+}

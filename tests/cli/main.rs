@@ -24,6 +24,7 @@ mod narrow;
 mod outputs;
 mod pair_real;
 mod pair_recovery;
+mod pose_sigma;
 mod readme;
 mod resume;
 mod scale3;

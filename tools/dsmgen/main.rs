@@ -155,6 +155,10 @@ struct TilesArgs {
     /// so that neighbours differ by it.
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     dz_offset: f64,
+    /// Write every tile with odd row + col at this many times the pixel, over
+    /// the same footprint (a collection of mixed resolutions); must divide --size.
+    #[arg(long, default_value_t = 1)]
+    odd_gsd_factor: u32,
     /// Terrain relief scale (0 with --buildings 0 --trees 0: a flat field).
     #[arg(long, default_value_t = 1.0)]
     relief: f64,
@@ -346,6 +350,7 @@ fn tiles(a: TilesArgs) -> Result<(), SynthError> {
         rendering: a.render.rendering(),
         points_per_px: a.points_per_px.unwrap_or(0.0),
         dz_offset_m: a.dz_offset,
+        odd_gsd_factor: a.odd_gsd_factor,
         ..Default::default()
     };
     let scene = [a.relief, a.buildings, a.trees, a.lakes];

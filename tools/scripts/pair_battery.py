@@ -12,12 +12,16 @@ converged pair's largest |error| / sigma (x, y, z, roll, pitch, yaw) is above
 3 (else `ok r`), then each pair as reference>moving:status:e<largest shift
 error, m>:r<largest ratio>, and the per-DSM line of `dsmgen score`.
 
-Usage: pair_battery.py BIN_DIR FIRST COUNT [--narrow] [--work DIR]
+Usage: pair_battery.py BIN_DIR FIRST COUNT [--narrow] [--odd-gsd-factor K] [--work DIR]
   BIN_DIR  holds dsmstream and dsmgen
   --narrow overlaps of 0.15-0.3, 0.5-2 m pixels, offsets of 20 or 50 m per
            tile and axis (the cases the search radius cut to half the overlap
            missed); default: the general mix (also 30 m DSMs, offsets up to
            1 km, datum offsets up to 300 m)
+  --odd-gsd-factor K  every tile with odd row + col written at K times the
+           pixel over the same footprint (mixed resolutions); the cases'
+           other draws are those without it, so the two runs compare case by
+           case
 """
 import argparse
 import csv
@@ -62,7 +66,7 @@ def number(text):
         return float('nan')
 
 
-def run_case(bin_dir, work, k, s):
+def run_case(bin_dir, work, k, s, factor=1):
     d = os.path.join(work, f'case{k}')
     subprocess.run(['rm', '-rf', d], check=True)
     os.makedirs(d)
@@ -75,7 +79,11 @@ def run_case(bin_dir, work, k, s):
            '--buildings', str(s['buildings']), '--lakes', str(s['lakes']),
            '--water', s['water'], '--noise', str(s['noise']),
            '--seed', str(s['seed']), '--out', f'{d}/tiles']
+    if factor != 1:
+        gen += ['--odd-gsd-factor', str(factor)]
     label = f'k={k} ' + ' '.join(f'{a}={b}' for a, b in s.items())
+    if factor != 1:
+        label += f' odd_gsd_factor={factor}'
     g = subprocess.run(gen, capture_output=True, text=True)
     if g.returncode:
         return f'{label}\tGENERATE_EXIT {g.returncode}\t{g.stderr.strip()[-200:]}'
@@ -109,10 +117,12 @@ def main():
     p.add_argument('first', type=int)
     p.add_argument('count', type=int)
     p.add_argument('--narrow', action='store_true')
+    p.add_argument('--odd-gsd-factor', type=int, default=1)
     p.add_argument('--work', default='/tmp/pair_battery')
     args = p.parse_args()
     for k in range(args.first, args.first + args.count):
-        print(run_case(args.bin_dir, args.work, k, settings(k, args.narrow)), flush=True)
+        s = settings(k, args.narrow)
+        print(run_case(args.bin_dir, args.work, k, s, args.odd_gsd_factor), flush=True)
 
 
 if __name__ == '__main__':

@@ -78,6 +78,16 @@ pub struct TileSetParams {
     /// (row + col) is odd, so that neighbours differ by it (metres).
     #[serde(default)]
     pub dz_offset_m: f64,
+    /// Every tile whose (row + col) is odd is written at this many times the
+    /// pixel over the same footprint (`size_px` / factor pixels a side): a
+    /// collection that mixes resolutions, as a 1 m lidar DSM beside 0.5 m
+    /// stereo ones. 1: one pixel for all.
+    #[serde(default = "one")]
+    pub odd_gsd_factor: u32,
+}
+
+fn one() -> u32 {
+    1
 }
 
 impl Default for TileSetParams {
@@ -104,6 +114,7 @@ impl Default for TileSetParams {
             rendering: Rendering::Centre,
             points_per_px: 0.0,
             dz_offset_m: 0.0,
+            odd_gsd_factor: 1,
         }
     }
 }
@@ -198,16 +209,19 @@ pub fn plan_tiles(p: &TileSetParams, pivot_z_m: f64) -> Vec<TileSpec> {
                 [p.max_shift_xy_m, p.max_shift_z_m, p.max_rot_deg],
                 p.anchor_first && index == 0,
             );
-            if (r + c) % 2 == 1 {
+            let odd = (r + c) % 2 == 1;
+            if odd {
                 shift_m[2] += p.dz_offset_m;
             }
+            let factor = if odd { p.odd_gsd_factor.max(1) } else { 1 };
+            let (side_px, gsd_m) = (p.size_px / factor, p.gsd_m * factor as f64);
             let centre = Vector3::new(x0 + side_m / 2.0, y0 - side_m / 2.0, pivot_z_m);
             tiles.push(TileSpec {
                 id: format!("tile_{index:02}"),
                 index,
-                width: p.size_px as u64,
-                height: p.size_px as u64,
-                geotransform: GeoTransform::north_up(x0, y0, p.gsd_m, p.gsd_m),
+                width: side_px as u64,
+                height: side_px as u64,
+                geotransform: GeoTransform::north_up(x0, y0, gsd_m, gsd_m),
                 m_world: rigid_about(centre, shift_m, rot_deg),
                 seed: derive_seed(p.seed, 2000 + index as u64),
                 shift_m,
