@@ -193,6 +193,12 @@ fn validate(
             raster.crs.label()
         ));
     }
+    if let Some(unit) = raster.crs.non_metre_units().first() {
+        return bad(format!(
+            "{unit} in CRS {}, not metres: reproject to a metric CRS first (heights too), e.g. gdalwarp -t_srs EPSG:326xx",
+            raster.crs.label()
+        ));
+    }
     if !raster.geotransform.is_north_up() {
         return bad(format!(
             "geotransform {:?} is rotated, sheared or not north-up; only north-up rasters are supported (gdalwarp can resample it)",

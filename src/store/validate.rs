@@ -70,6 +70,9 @@ pub fn check_crs(crs: &Crs) -> Result<(), String> {
                 .into(),
         );
     }
+    if let Some(unit) = crs.non_metre_units().first() {
+        return Err(format!("{unit} in CRS {}, not metres", crs.label()));
+    }
     Ok(())
 }
 

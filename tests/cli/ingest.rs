@@ -144,6 +144,50 @@ fn geographic_srtm_is_refused_with_exit_2() {
     assert!(!store.exists(), "nothing written for a refused input");
 }
 
+/// A DSM in a CRS whose unit is the foot (US State Plane and Oregon Lambert
+/// rasters often are): every distance the tool reports is in metres, so the
+/// file is refused by name, its unit said, rather than registered in feet
+/// read as metres.
+#[test]
+fn a_dsm_in_feet_is_refused_with_its_unit() {
+    use dsmstream::geo::{Crs, GeoTransform};
+    use dsmstream::geotiff::writer::{write_geotiff_f32, CogOptions};
+    let tmp = tempfile::tempdir().unwrap();
+    let write = |name: &str, unit_key: [u16; 4]| {
+        // EPSG:2992, NAD83 / Oregon GIC Lambert (ft), as GDAL writes it
+        let mut geokeys = vec![1, 1, 0, 4, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, 2992];
+        geokeys.extend_from_slice(&unit_key);
+        let options = CogOptions {
+            geotransform: GeoTransform::north_up(7_650_000.0, 700_000.0, 3.0, 3.0),
+            crs: Crs {
+                epsg: Some(2992),
+                geokeys,
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        let data: Vec<f32> = (0..32 * 32).map(|k| 400.0 + (k % 32) as f32).collect();
+        let path = tmp.path().join(name);
+        write_geotiff_f32(&path, 32, 32, options, &data).unwrap();
+        path
+    };
+    let feet = write("autzen_ft.tif", [3076, 0, 1, 9002]);
+    let store = tmp.path().join("c.zarr");
+    let out = ingest(&[&feet], &store, &[]);
+    assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
+    let err = text(&out.stderr);
+    assert!(err.contains("autzen_ft.tif"), "{err}");
+    assert!(
+        err.contains("horizontal unit foot (EPSG unit 9002) in CRS EPSG:2992, not metres"),
+        "{err}"
+    );
+    assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
+    assert!(!store.exists(), "nothing written for a refused input");
+    // the same raster in metres (the unit key says so) is taken
+    let metres = write("autzen_m.tif", [3076, 0, 1, 9001]);
+    assert_ok(&ingest(&[&metres], &store, &[]));
+}
+
 /// A lidar file handed to ingest (the usual mistake) is named for what it is.
 #[test]
 fn a_point_cloud_is_refused_with_what_to_do() {
