@@ -67,7 +67,7 @@ fn two_dsms_carry_their_share_of_the_floor_on_their_rotations() {
 
 /// A 2 x 2 grid whose tiles alternate 0.5 m and 1 m pixels over the same
 /// footprints (`--odd-gsd-factor 2`: every strip pairs the two sizes), points
-/// binned as lidar maxima: every pair converges and every DSM is within 5 cm
+/// binned as lidar maxima: every pair is an edge and every DSM is within 5 cm
 /// of the truth and within 3 of its sigmas.
 #[test]
 fn dsms_of_two_pixel_sizes_register_within_their_sigmas() {
