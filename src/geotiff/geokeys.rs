@@ -31,6 +31,8 @@ pub mod key {
     pub const PCS_CITATION: u16 = 3073;
     pub const PROJ_COORD_TRANS: u16 = 3075;
     pub const PROJ_LINEAR_UNITS: u16 = 3076;
+    pub const PROJ_LINEAR_UNIT_SIZE: u16 = 3077;
+    pub const VERTICAL_UNITS: u16 = 4099;
 }
 
 /// GeoKey code meaning "user-defined": no EPSG code.
@@ -219,6 +221,62 @@ fn describe_custom(keys: &GeoKeys, model: Option<u16>) -> String {
         }
     }
     text
+}
+
+/// EPSG unit code of the metre.
+const METRE: u16 = 9001;
+
+/// The units of length a CRS's geokeys name other than the metre, horizontal
+/// first: e.g. "horizontal unit US survey foot (EPSG unit 9003)". Empty when
+/// they name metres or no unit (an EPSG code alone: its unit is the EPSG
+/// definition's, which this reader does not carry), or cannot be parsed.
+pub fn non_metre_units(crs: &Crs) -> Vec<String> {
+    let mut found = Vec::new();
+    let ascii = crs.geo_ascii.as_deref().unwrap_or("");
+    let Ok(keys) = GeoKeys::parse(&crs.geokeys, &crs.geo_doubles, ascii) else {
+        return found;
+    };
+    match keys.short(key::PROJ_LINEAR_UNITS) {
+        Some(USER_DEFINED) => {
+            let size = match keys.get(key::PROJ_LINEAR_UNIT_SIZE) {
+                Some(GeoKeyValue::Doubles(d)) => d.first().copied(),
+                _ => None,
+            };
+            if let Some(size) = size.filter(|s| (s - 1.0).abs() > 1e-9) {
+                found.push(format!("horizontal unit of {size} m (user-defined)"));
+            }
+        }
+        Some(code) if code != METRE => {
+            found.push(format!("horizontal unit {}", unit_name(code)));
+        }
+        _ => {}
+    }
+    match keys.short(key::VERTICAL_UNITS) {
+        Some(code) if code != METRE && code != USER_DEFINED => {
+            found.push(format!("height unit {}", unit_name(code)));
+        }
+        _ => {}
+    }
+    found
+}
+
+/// "US survey foot (EPSG unit 9003)", or "EPSG unit N" for codes not named here.
+fn unit_name(code: u16) -> String {
+    let name = match code {
+        9002 => "foot",
+        9003 => "US survey foot",
+        9004 => "modified American foot",
+        9005 => "Clarke's foot",
+        9006 => "Indian foot",
+        9014 => "fathom",
+        9030 => "nautical mile",
+        9035 => "statute mile",
+        9036 => "kilometre",
+        9037 => "Clarke's yard",
+        9096 => "yard",
+        _ => return format!("EPSG unit {code}"),
+    };
+    format!("{name} (EPSG unit {code})")
 }
 
 fn coord_trans_name(code: u16) -> String {
@@ -479,5 +537,54 @@ mod tests {
         let tags = encode_crs(&bare, false);
         let back = crs_from_tags(&tags.directory, &tags.doubles, None).unwrap();
         assert_eq!((back.epsg, back.is_geographic), (Some(4326), true));
+    }
+
+    fn crs_with(entries: &[[u16; 4]], doubles: &[f64]) -> Crs {
+        let mut geokeys = vec![1, 1, 0, entries.len() as u16];
+        entries.iter().for_each(|e| geokeys.extend_from_slice(e));
+        Crs {
+            epsg: Some(2992),
+            geokeys,
+            geo_doubles: doubles.to_vec(),
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn feet_are_named_and_metres_are_not() {
+        let projected = [1024, 0, 1, 1];
+        let feet = crs_with(&[projected, [3072, 0, 1, 2992], [3076, 0, 1, 9002]], &[]);
+        assert_eq!(
+            non_metre_units(&feet),
+            ["horizontal unit foot (EPSG unit 9002)"]
+        );
+        let survey = crs_with(&[[3076, 0, 1, 9003], [4099, 0, 1, 9003]], &[]);
+        assert_eq!(
+            non_metre_units(&survey),
+            [
+                "horizontal unit US survey foot (EPSG unit 9003)",
+                "height unit US survey foot (EPSG unit 9003)"
+            ]
+        );
+        let metres = crs_with(&[projected, [3076, 0, 1, 9001], [4099, 0, 1, 9001]], &[]);
+        assert!(non_metre_units(&metres).is_empty());
+        // an EPSG code alone names no unit here
+        let epsg_only = crs_with(&[projected, [3072, 0, 1, 32617]], &[]);
+        assert!(non_metre_units(&epsg_only).is_empty());
+        assert!(non_metre_units(&Crs::default()).is_empty());
+        // GDAL's UTM directory names the metre
+        let utm = crs_from_tags(&UTM_DIR, &[], Some("NAD83 / UTM zone 17N|NAD83|\0")).unwrap();
+        assert!(non_metre_units(&utm).is_empty());
+    }
+
+    #[test]
+    fn a_user_defined_unit_is_judged_by_its_size() {
+        let size =
+            |metres: f64| crs_with(&[[3076, 0, 1, 32767], [3077, 34736, 1, 1]], &[0.0, metres]);
+        assert_eq!(
+            non_metre_units(&size(0.3048)),
+            ["horizontal unit of 0.3048 m (user-defined)"]
+        );
+        assert!(non_metre_units(&size(1.0)).is_empty());
     }
 }

@@ -193,7 +193,7 @@ fn validate(
             raster.crs.label()
         ));
     }
-    if let Some(unit) = raster.crs.non_metre_units().first() {
+    if let Some(unit) = crate::geotiff::geokeys::non_metre_units(&raster.crs).first() {
         return bad(format!(
             "{unit} in CRS {}, not metres: reproject to a metric CRS first (heights too), e.g. gdalwarp -t_srs EPSG:326xx",
             raster.crs.label()

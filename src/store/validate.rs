@@ -70,7 +70,7 @@ pub fn check_crs(crs: &Crs) -> Result<(), String> {
                 .into(),
         );
     }
-    if let Some(unit) = crs.non_metre_units().first() {
+    if let Some(unit) = crate::geotiff::geokeys::non_metre_units(crs).first() {
         return Err(format!("{unit} in CRS {}, not metres", crs.label()));
     }
     Ok(())
