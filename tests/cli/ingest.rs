@@ -128,20 +128,28 @@ fn rerun_skips_force_replaces_touched_source_replaces() {
     );
 }
 
+/// An ingest refused as bad input: exit 2, one line on stderr naming `file`
+/// and saying `why`, and no store written.
+fn assert_refused(out: &Output, store: &Path, file: &str, why: &str) {
+    assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
+    let err = text(&out.stderr);
+    assert!(err.contains(file), "{err}");
+    assert!(err.contains(why), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
+    assert!(!store.exists(), "nothing written for a refused input");
+}
+
 #[test]
 fn geographic_srtm_is_refused_with_exit_2() {
     let tmp = tempfile::tempdir().unwrap();
     let store = tmp.path().join("c.zarr");
     let out = ingest(&[&fixture("demcompare_srtm/srtm_ref.tif")], &store, &[]);
-    assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
-    let err = text(&out.stderr);
-    assert!(err.contains("srtm_ref.tif"), "{err}");
-    assert!(
-        err.contains("geographic CRS EPSG:4326 (degrees) is not a metric frame"),
-        "{err}"
+    assert_refused(
+        &out,
+        &store,
+        "srtm_ref.tif",
+        "geographic CRS EPSG:4326 (degrees) is not a metric frame",
     );
-    assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
-    assert!(!store.exists(), "nothing written for a refused input");
 }
 
 /// A DSM in a CRS whose unit is the foot (US State Plane and Oregon Lambert
@@ -174,15 +182,12 @@ fn a_dsm_in_feet_is_refused_with_its_unit() {
     let feet = write("autzen_ft.tif", [3076, 0, 1, 9002]);
     let store = tmp.path().join("c.zarr");
     let out = ingest(&[&feet], &store, &[]);
-    assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
-    let err = text(&out.stderr);
-    assert!(err.contains("autzen_ft.tif"), "{err}");
-    assert!(
-        err.contains("horizontal unit foot (EPSG unit 9002) in CRS EPSG:2992, not metres"),
-        "{err}"
+    assert_refused(
+        &out,
+        &store,
+        "autzen_ft.tif",
+        "horizontal unit foot (EPSG unit 9002) in CRS EPSG:2992, not metres",
     );
-    assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
-    assert!(!store.exists(), "nothing written for a refused input");
     // the same raster in metres (the unit key says so) is taken
     let metres = write("autzen_m.tif", [3076, 0, 1, 9001]);
     assert_ok(&ingest(&[&metres], &store, &[]));
@@ -198,15 +203,12 @@ fn a_point_cloud_is_refused_with_what_to_do() {
     std::fs::write(&laz, header).unwrap();
     let store = tmp.path().join("c.zarr");
     let out = ingest(&[&laz], &store, &[]);
-    assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
-    let err = text(&out.stderr);
-    assert!(err.contains("epoch.laz"), "{err}");
-    assert!(
-        err.contains("a LAS/LAZ point cloud: grid it into a DSM GeoTIFF first"),
-        "{err}"
+    assert_refused(
+        &out,
+        &store,
+        "epoch.laz",
+        "a LAS/LAZ point cloud: grid it into a DSM GeoTIFF first",
     );
-    assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
-    assert!(!store.exists(), "nothing written for a refused input");
 }
 
 #[test]
