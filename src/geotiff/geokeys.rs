@@ -32,6 +32,7 @@ pub mod key {
     pub const PROJ_COORD_TRANS: u16 = 3075;
     pub const PROJ_LINEAR_UNITS: u16 = 3076;
     pub const PROJ_LINEAR_UNIT_SIZE: u16 = 3077;
+    pub const VERTICAL_CS_TYPE: u16 = 4096;
     pub const VERTICAL_UNITS: u16 = 4099;
 }
 
@@ -226,15 +227,22 @@ fn describe_custom(keys: &GeoKeys, model: Option<u16>) -> String {
 /// EPSG unit code of the metre.
 const METRE: u16 = 9001;
 
-/// The units of length a CRS's geokeys name other than the metre, horizontal
-/// first: e.g. "horizontal unit US survey foot (EPSG unit 9003)". Empty when
-/// they name metres or no unit (an EPSG code alone: its unit is the EPSG
-/// definition's, which this reader does not carry), or cannot be parsed.
+/// The units of length of a CRS other than the metre, horizontal first: e.g.
+/// "horizontal unit US survey foot (EPSG unit 9003)". A unit key
+/// (ProjLinearUnits, VerticalUnits) is taken as written; without one, the
+/// unit of the EPSG CRS the code keys name (ProjectedCSType, VerticalCSType)
+/// is looked up in [`epsg_units`](super::epsg_units), as GDAL takes it from
+/// the EPSG definition. Empty when every unit is the metre or none is known,
+/// or the keys cannot be parsed.
 pub fn non_metre_units(crs: &Crs) -> Vec<String> {
     let mut found = Vec::new();
     let ascii = crs.geo_ascii.as_deref().unwrap_or("");
     let Ok(keys) = GeoKeys::parse(&crs.geokeys, &crs.geo_doubles, ascii) else {
         return found;
+    };
+    let by_code = |id, table| {
+        let code = keys.short(id).filter(|&c| c != 0 && c != USER_DEFINED)?;
+        Some((epsg_unit(table, code)?, code))
     };
     match keys.short(key::PROJ_LINEAR_UNITS) {
         Some(USER_DEFINED) => {
@@ -249,34 +257,49 @@ pub fn non_metre_units(crs: &Crs) -> Vec<String> {
         Some(code) if code != METRE => {
             found.push(format!("horizontal unit {}", unit_name(code)));
         }
-        _ => {}
+        Some(_) => {}
+        None => {
+            // the caller names the CRS
+            if let Some((unit, _)) = by_code(key::PROJECTED_CS_TYPE, super::epsg_units::PROJECTED) {
+                found.push(format!(
+                    "horizontal unit {} by its EPSG definition",
+                    unit_name(unit)
+                ));
+            }
+        }
     }
     match keys.short(key::VERTICAL_UNITS) {
         Some(code) if code != METRE && code != USER_DEFINED => {
             found.push(format!("height unit {}", unit_name(code)));
         }
-        _ => {}
+        Some(_) => {}
+        None => {
+            if let Some((unit, crs)) = by_code(key::VERTICAL_CS_TYPE, super::epsg_units::VERTICAL) {
+                found.push(format!(
+                    "height unit {} of vertical CRS EPSG:{crs}",
+                    unit_name(unit)
+                ));
+            }
+        }
     }
     found
 }
 
-/// "US survey foot (EPSG unit 9003)", or "EPSG unit N" for codes not named here.
+/// The EPSG unit of the CRS `code` in a table of runs (first, last, unit)
+/// sorted by code; `None` for codes not in it (metres, or unknown).
+fn epsg_unit(runs: &[(u16, u16, u16)], code: u16) -> Option<u16> {
+    let at = runs.partition_point(|&(_, last, _)| last < code);
+    runs.get(at)
+        .filter(|&&(first, _, _)| first <= code)
+        .map(|&(_, _, unit)| unit)
+}
+
+/// "US survey foot (EPSG unit 9003)", or "EPSG unit N" for codes not in EPSG.
 fn unit_name(code: u16) -> String {
-    let name = match code {
-        9002 => "foot",
-        9003 => "US survey foot",
-        9004 => "modified American foot",
-        9005 => "Clarke's foot",
-        9006 => "Indian foot",
-        9014 => "fathom",
-        9030 => "nautical mile",
-        9035 => "statute mile",
-        9036 => "kilometre",
-        9037 => "Clarke's yard",
-        9096 => "yard",
-        _ => return format!("EPSG unit {code}"),
-    };
-    format!("{name} (EPSG unit {code})")
+    match super::epsg_units::UNIT_NAMES.binary_search_by_key(&code, |&(c, _)| c) {
+        Ok(at) => format!("{} (EPSG unit {code})", super::epsg_units::UNIT_NAMES[at].1),
+        Err(_) => format!("EPSG unit {code}"),
+    }
 }
 
 fn coord_trans_name(code: u16) -> String {
@@ -568,13 +591,67 @@ mod tests {
         );
         let metres = crs_with(&[projected, [3076, 0, 1, 9001], [4099, 0, 1, 9001]], &[]);
         assert!(non_metre_units(&metres).is_empty());
-        // an EPSG code alone names no unit here
+        // an EPSG code alone of a CRS in metres
         let epsg_only = crs_with(&[projected, [3072, 0, 1, 32617]], &[]);
         assert!(non_metre_units(&epsg_only).is_empty());
         assert!(non_metre_units(&Crs::default()).is_empty());
         // GDAL's UTM directory names the metre
         let utm = crs_from_tags(&UTM_DIR, &[], Some("NAD83 / UTM zone 17N|NAD83|\0")).unwrap();
         assert!(non_metre_units(&utm).is_empty());
+    }
+
+    #[test]
+    fn an_epsg_code_alone_gives_its_definition_s_unit() {
+        let projected = [1024, 0, 1, 1];
+        let only = |code: u16| crs_with(&[projected, [3072, 0, 1, code]], &[]);
+        assert_eq!(
+            non_metre_units(&only(2263)),
+            ["horizontal unit US survey foot (EPSG unit 9003) by its EPSG definition"]
+        );
+        assert_eq!(
+            non_metre_units(&only(2992)),
+            ["horizontal unit foot (EPSG unit 9002) by its EPSG definition"]
+        );
+        // the first and last codes of runs, and their neighbours in metres
+        assert_eq!(
+            epsg_unit(super::super::epsg_units::PROJECTED, 2222),
+            Some(9002)
+        );
+        assert_eq!(
+            epsg_unit(super::super::epsg_units::PROJECTED, 2289),
+            Some(9003)
+        );
+        assert_eq!(epsg_unit(super::super::epsg_units::PROJECTED, 2290), None);
+        assert_eq!(epsg_unit(super::super::epsg_units::PROJECTED, 2221), None);
+        for code in [0, 1, 26917, 32617, 25832, 2154, 3857, 65534] {
+            assert!(non_metre_units(&only(code)).is_empty(), "EPSG:{code}");
+        }
+        // heights: NAVD88 in US survey feet by code, in metres (5703) not
+        let vertical =
+            |code: u16| crs_with(&[projected, [3072, 0, 1, 26917], [4096, 0, 1, code]], &[]);
+        assert_eq!(
+            non_metre_units(&vertical(6360)),
+            ["height unit US survey foot (EPSG unit 9003) of vertical CRS EPSG:6360"]
+        );
+        assert!(non_metre_units(&vertical(5703)).is_empty());
+        // a unit key is taken as written over the code's definition
+        let said = crs_with(&[projected, [3072, 0, 1, 2263], [3076, 0, 1, 9001]], &[]);
+        assert!(non_metre_units(&said).is_empty());
+    }
+
+    #[test]
+    fn the_generated_tables_are_sorted_runs() {
+        use super::super::epsg_units::{PROJECTED, UNIT_NAMES, VERTICAL};
+        for runs in [PROJECTED, VERTICAL] {
+            assert!(runs
+                .iter()
+                .all(|&(first, last, unit)| first <= last && unit != METRE));
+            assert!(runs.windows(2).all(|w| w[0].1 < w[1].0));
+            assert!(runs
+                .iter()
+                .all(|&(_, _, unit)| !unit_name(unit).starts_with("EPSG")));
+        }
+        assert!(UNIT_NAMES.windows(2).all(|w| w[0].0 < w[1].0));
     }
 
     #[test]

@@ -161,10 +161,14 @@ fn a_dsm_in_feet_is_refused_with_its_unit() {
     use dsmstream::geo::{Crs, GeoTransform};
     use dsmstream::geotiff::writer::{write_geotiff_f32, CogOptions};
     let tmp = tempfile::tempdir().unwrap();
-    let write = |name: &str, unit_key: [u16; 4]| {
+    let write = |name: &str, unit_key: Option<[u16; 4]>| {
         // EPSG:2992, NAD83 / Oregon GIC Lambert (ft), as GDAL writes it
-        let mut geokeys = vec![1, 1, 0, 4, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, 2992];
-        geokeys.extend_from_slice(&unit_key);
+        // (with the unit key) or as writers that give the code alone do
+        let count = 3 + u16::from(unit_key.is_some());
+        let mut geokeys = vec![
+            1, 1, 0, count, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, 2992,
+        ];
+        geokeys.extend(unit_key.iter().flatten());
         let options = CogOptions {
             geotransform: GeoTransform::north_up(7_650_000.0, 700_000.0, 3.0, 3.0),
             crs: Crs {
@@ -179,7 +183,7 @@ fn a_dsm_in_feet_is_refused_with_its_unit() {
         write_geotiff_f32(&path, 32, 32, options, &data).unwrap();
         path
     };
-    let feet = write("autzen_ft.tif", [3076, 0, 1, 9002]);
+    let feet = write("autzen_ft.tif", Some([3076, 0, 1, 9002]));
     let store = tmp.path().join("c.zarr");
     let out = ingest(&[&feet], &store, &[]);
     assert_refused(
@@ -188,8 +192,17 @@ fn a_dsm_in_feet_is_refused_with_its_unit() {
         "autzen_ft.tif",
         "horizontal unit foot (EPSG unit 9002) in CRS EPSG:2992, not metres",
     );
+    // the code alone: its unit is the EPSG definition's
+    let code_only = write("autzen_code.tif", None);
+    let out = ingest(&[&code_only], &store, &[]);
+    assert_refused(
+        &out,
+        &store,
+        "autzen_code.tif",
+        "horizontal unit foot (EPSG unit 9002) by its EPSG definition in CRS EPSG:2992, not metres",
+    );
     // the same raster in metres (the unit key says so) is taken
-    let metres = write("autzen_m.tif", [3076, 0, 1, 9001]);
+    let metres = write("autzen_m.tif", Some([3076, 0, 1, 9001]));
     assert_ok(&ingest(&[&metres], &store, &[]));
 }
 
