@@ -30,16 +30,17 @@ impl Crs {
         }
     }
 
-    /// Same CRS for registration purposes: equal EPSG codes, or (without codes)
-    /// identical raw geokeys and params.
+    /// Same CRS for registration purposes: equal EPSG codes (a user-defined
+    /// UTM zone counts as its code: `geotiff::equivalent::code`), or, without
+    /// codes, keys that define the same thing, citations aside.
     pub fn same_as(&self, other: &Crs) -> bool {
-        match (self.epsg, other.epsg) {
-            (Some(a), Some(b)) => a == b && self.is_geographic == other.is_geographic,
-            (None, None) => {
-                self.geokeys == other.geokeys
-                    && self.geo_doubles == other.geo_doubles
-                    && self.geo_ascii == other.geo_ascii
-            }
+        use crate::geotiff::equivalent::{code, same_definition};
+        if self.is_geographic != other.is_geographic {
+            return false;
+        }
+        match (code(self), code(other)) {
+            (Some(a), Some(b)) => a == b,
+            (None, None) => same_definition(self, other),
             _ => false,
         }
     }

@@ -176,7 +176,8 @@ pub fn crs_from_tags(
         Some(_) => None,
         None => projected.or(geographic),
     }
-    .map(u32::from);
+    .map(u32::from)
+    .or_else(|| super::equivalent::identify_utm(&keys));
     let wkt = if epsg.is_none() && !directory.is_empty() {
         Some(describe_custom(&keys, model))
     } else {

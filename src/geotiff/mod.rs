@@ -2,6 +2,7 @@
 //! a time) and a tiled, Cloud-Optimized writer. No GDAL dependency.
 
 pub mod epsg_units;
+pub mod equivalent;
 pub mod geokeys;
 pub mod reader;
 pub mod writer;

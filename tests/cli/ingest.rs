@@ -206,6 +206,77 @@ fn a_dsm_in_feet_is_refused_with_its_unit() {
     assert_ok(&ingest(&[&metres], &store, &[]));
 }
 
+/// One UTM zone described two ways, as GDAL writes it (EPSG:32617) and as a
+/// user-defined Transverse Mercator on WGS 84 with its own citation (other
+/// producers), is one collection; a TM one degree off is another CRS.
+#[test]
+fn a_utm_zone_written_as_user_defined_joins_its_epsg_twin() {
+    use dsmstream::geo::{Crs, GeoTransform};
+    use dsmstream::geotiff::writer::{write_geotiff_f32, CogOptions};
+    let tmp = tempfile::tempdir().unwrap();
+    let write = |name: &str, geokeys: Vec<u16>, doubles: Vec<f64>, ascii: Option<&str>| {
+        let options = CogOptions {
+            geotransform: GeoTransform::north_up(500_000.0, 4_800_000.0, 1.0, 1.0),
+            crs: Crs {
+                geokeys,
+                geo_doubles: doubles,
+                geo_ascii: ascii.map(str::to_string),
+                ..Default::default()
+            },
+            ..Default::default()
+        };
+        let data: Vec<f32> = (0..64 * 64).map(|k| 150.0 + (k % 64) as f32).collect();
+        let path = tmp.path().join(name);
+        write_geotiff_f32(&path, 64, 64, options, &data).unwrap();
+        path
+    };
+    let gdal = write(
+        "gdal.tif",
+        vec![1, 1, 0, 3, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, 32617],
+        vec![],
+        None,
+    );
+    // projected, user-defined, WGS 84, TM, metres, its citation, then the
+    // central meridian, latitude of origin, false easting and northing, scale
+    let custom = |long: f64| {
+        let entries: [[u16; 4]; 13] = [
+            [1024, 0, 1, 1],
+            [1025, 0, 1, 1],
+            [2048, 0, 1, 4326],
+            [3072, 0, 1, 32767],
+            [3073, 34737, 22, 0],
+            [3074, 0, 1, 32767],
+            [3075, 0, 1, 1],
+            [3076, 0, 1, 9001],
+            [3080, 34736, 1, 0],
+            [3081, 34736, 1, 1],
+            [3082, 34736, 1, 2],
+            [3083, 34736, 1, 3],
+            [3092, 34736, 1, 4],
+        ];
+        let mut keys = vec![1, 1, 0, entries.len() as u16];
+        keys.extend(entries.iter().flatten());
+        (keys, vec![long, 0.0, 500_000.0, 0.0, 0.9996])
+    };
+    let (keys, doubles) = custom(-81.0);
+    let twin = write("custom.tif", keys, doubles, Some("UTM 17 North (custom)|"));
+    let store = tmp.path().join("c.zarr");
+    assert_ok(&ingest(&[&gdal, &twin], &store, &[]));
+    let info = text(&dsmstream(&["info", store.to_str().unwrap()]).stdout);
+    assert!(info.contains("2 DSMs, CRS EPSG:32617"), "{info}");
+    // one degree east of the zone's meridian: not the collection's CRS
+    let (keys, doubles) = custom(-80.0);
+    let off = write("off.tif", keys, doubles, Some("UTM 17 North (custom)|"));
+    let out = ingest(&[&off], &store, &[]);
+    assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
+    let err = text(&out.stderr);
+    assert!(
+        err.contains("off.tif") && err.contains("differs from the collection's CRS EPSG:32617"),
+        "{err}"
+    );
+    assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
+}
+
 /// A lidar file handed to ingest (the usual mistake) is named for what it is.
 #[test]
 fn a_point_cloud_is_refused_with_what_to_do() {
