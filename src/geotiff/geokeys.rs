@@ -16,6 +16,7 @@ pub mod tag {
     pub const GEO_KEY_DIRECTORY: u16 = 34735;
     pub const GEO_DOUBLE_PARAMS: u16 = 34736;
     pub const GEO_ASCII_PARAMS: u16 = 34737;
+    pub const GDAL_METADATA: u16 = 42112;
     pub const GDAL_NODATA: u16 = 42113;
 }
 

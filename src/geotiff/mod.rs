@@ -3,6 +3,7 @@
 
 pub mod epsg_units;
 pub mod equivalent;
+pub mod gdal_metadata;
 pub mod geokeys;
 pub mod reader;
 pub mod writer;

@@ -27,6 +27,7 @@ use std::fs::File;
 use std::path::{Path, PathBuf};
 
 use crate::geo::{Crs, GeoTransform};
+use crate::geotiff::gdal_metadata::BandMetadata;
 use crate::geotiff::geokeys::GeoKeyError;
 use decode::{BlockDecoder, MapBytes, RowSink};
 
@@ -165,6 +166,9 @@ pub struct GeoTiffInfo {
     pub predictor: u16,
     /// The raster type geokey said pixel-is-point.
     pub pixel_is_point: bool,
+    /// Band 1's scale, offset and unit from GDAL's metadata: values read are
+    /// `raw * scale + offset` (no-data matched on the raw values first).
+    pub band: BandMetadata,
 }
 
 /// One open GeoTIFF. `Send`, not meant to be shared: each worker opens its own.
@@ -275,6 +279,12 @@ impl GeoTiffReader {
             let sink = RowSink::new(out, width as usize, row0);
             self.blocks
                 .decode_block_rows(full_first..=full_last, &sink)?;
+        }
+        if self.info.band.rescales() {
+            let (scale, offset) = (self.info.band.scale, self.info.band.offset);
+            for v in out.iter_mut().filter(|v| !v.is_nan()) {
+                *v = (f64::from(*v) * scale + offset) as f32;
+            }
         }
         Ok(())
     }

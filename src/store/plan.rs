@@ -199,6 +199,13 @@ fn validate(
             raster.crs.label()
         ));
     }
+    if let Some(unit) =
+        (raster.height_unit.as_deref()).filter(|u| crate::geotiff::gdal_metadata::is_feet(u))
+    {
+        return bad(format!(
+            "height unit {unit:?} (GDAL band metadata), not metres: convert the heights to metres first (x 0.3048 for feet, x 0.3048006 for US survey feet)"
+        ));
+    }
     if !raster.geotransform.is_north_up() {
         return bad(format!(
             "geotransform {:?} is rotated, sheared or not north-up; only north-up rasters are supported (gdalwarp can resample it)",

@@ -22,6 +22,8 @@ pub struct SourceRaster {
     pub nodata: Option<f64>,
     /// Sample type of the file, GDAL names: "Float32", "Int16", ...
     pub dtype: String,
+    /// The unit GDAL's band metadata names for the heights ("m", "ft"...).
+    pub height_unit: Option<String>,
 }
 
 /// A failure to open or read a source; the message names the file.
@@ -96,6 +98,7 @@ impl GeoTiffSource {
             crs: info.crs.clone(),
             nodata: info.nodata,
             dtype: info.sample_type.gdal_name().to_string(),
+            height_unit: info.band.unit.clone(),
         };
         Ok(GeoTiffSource {
             reader,

@@ -179,6 +179,7 @@ fn store_from_raw_rasters_for_check_zarr() {
             crs: utm(j["epsg"].as_u64().unwrap() as u32),
             nodata: j["nodata"].as_f64(),
             dtype: j["dtype"].as_str().unwrap().into(),
+            height_unit: None,
         };
         inputs
             .rasters

@@ -61,6 +61,7 @@ impl Inputs {
             crs,
             nodata: Some(-9999.0),
             dtype: "Float32".into(),
+            height_unit: None,
         };
         self.rasters
             .insert(path.clone(), MemSource { raster, data });

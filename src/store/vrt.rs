@@ -99,6 +99,11 @@ impl VrtSource {
             crs,
             nodata: spec.band_nodata.or(first.reader.raster().nodata),
             dtype: spec.data_type,
+            // a source in feet speaks for the mosaic, else the first source
+            height_unit: (sources.iter())
+                .filter_map(|s| s.reader.raster().height_unit.clone())
+                .find(|u| crate::geotiff::gdal_metadata::is_feet(u))
+                .or_else(|| first.reader.raster().height_unit.clone()),
         };
         Ok(VrtSource {
             raster,

@@ -277,6 +277,49 @@ fn a_utm_zone_written_as_user_defined_joins_its_epsg_twin() {
     assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
 }
 
+/// Heights stored as integers with GDAL's band scale and offset (centimetres
+/// about 100 m) are ingested in metres, equal to the same surface stored as
+/// Float32; a band whose unit is feet is refused by name, nothing written.
+#[test]
+fn gdal_band_scale_and_offset_give_metres_and_a_band_in_feet_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let geotiff = fixtures().join("geotiff");
+    let store = tmp.path().join("c.zarr");
+    let scaled = geotiff.join("i16_scale_offset.tif");
+    let float = geotiff.join("f32_tile_deflate.tif");
+    assert_ok(&ingest(&[&scaled, &float], &store, &[]));
+    let out = dsmstream(&["info", store.to_str().unwrap(), "--json"]);
+    let catalog: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let stats = |id: &str| {
+        let dsm = catalog["dsms"].as_array().unwrap().iter();
+        let dsm = dsm.clone().find(|d| d["id"] == id).unwrap().clone();
+        let h = &dsm["height_stats"];
+        let get = |k: &str| h[k].as_f64().unwrap();
+        (
+            dsm["valid_count"].as_u64().unwrap(),
+            get("min"),
+            get("max"),
+            get("mean"),
+        )
+    };
+    let (n_scaled, lo, hi, mean) = stats("i16_scale_offset");
+    let (n_float, lo_f, hi_f, mean_f) = stats("f32_tile_deflate");
+    assert_eq!(n_scaled, n_float);
+    // centimetre integers: within half a centimetre of the float surface
+    for (a, b) in [(lo, lo_f), (hi, hi_f), (mean, mean_f)] {
+        assert!((a - b).abs() <= 0.005 + 1e-6, "{a} vs {b}");
+    }
+    let feet = geotiff.join("f32_units_ft.tif");
+    let store = tmp.path().join("ft.zarr");
+    let out = ingest(&[&feet], &store, &[]);
+    assert_refused(
+        &out,
+        &store,
+        "f32_units_ft.tif",
+        "height unit \"ft\" (GDAL band metadata), not metres",
+    );
+}
+
 /// A lidar file handed to ingest (the usual mistake) is named for what it is.
 #[test]
 fn a_point_cloud_is_refused_with_what_to_do() {

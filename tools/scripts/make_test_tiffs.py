@@ -31,7 +31,7 @@ import numpy as np
 import rasterio
 from rasterio.transform import Affine, from_origin
 
-ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 OUT = os.path.join(ROOT, "fixtures", "geotiff")
 PIX = os.path.join(OUT, "pixels")
 W, H = 67, 45
@@ -191,9 +191,12 @@ def horizontal_epsg(crs):
 
 
 def gdal_pixels(ds):
-    """Band 1 as GDAL reads it, f32, NaN where GDAL's mask says no-data."""
+    """Band 1 as GDAL reads it, f32, NaN where GDAL's mask says no-data, in the
+    band's physical unit (raw * scale + offset, GDAL's band metadata; as
+    `gdal_translate -unscale` gives them, computed in double)."""
     band = ds.read(1, masked=True)
-    vals = np.ma.filled(band.astype("float64"), np.nan).astype("<f4")
+    scale, offset = ds.scales[0], ds.offsets[0]
+    vals = np.ma.filled(band.astype("float64") * scale + offset, np.nan).astype("<f4")
     return vals
 
 
@@ -359,6 +362,20 @@ def main():
     good.append(expect_good(write("f32_custom_crs.tif", data, nodata, crs=custom,
                                   transform=from_origin(250000.0, 5200000.0, 2.0, 2.0)),
                             {"custom_crs": True}))
+
+    # GDAL band metadata (GDAL_METADATA tag): heights stored as centimetres
+    # about 100 m (physical = raw * 0.01 + 100), and a band whose unit is feet.
+    z, holes = surface()
+    cm = np.round((z - 100.0) / 0.01).astype("int16")
+    cm[holes] = -32768
+    name = write("i16_scale_offset.tif", cm, -32768.0, compress="deflate", tiled=True)
+    with rasterio.open(os.path.join(OUT, name), "r+") as ds:
+        ds.scales, ds.offsets, ds.units = (0.01,), (100.0,), ("m",)
+    good.append(expect_good(name, {"scale": 0.01, "offset": 100.0, "height_unit": "m"}))
+    name = write("f32_units_ft.tif", data, nodata, compress="deflate")
+    with rasterio.open(os.path.join(OUT, name), "r+") as ds:
+        ds.units = ("ft",)
+    good.append(expect_good(name, {"height_unit": "ft"}))
 
     # ModelTransformation only: GDAL writes one for a rotated transform; patch it north-up.
     rot = Affine(0.5, 0.1, 630000.0, 0.1, -0.5, 4830000.0)

@@ -12,6 +12,7 @@ use tiff::tags::Tag;
 use super::decode::tiff_error;
 use super::direct::DirectCodec;
 use super::{GeoTiffError, GeoTiffInfo, SampleType};
+use crate::geotiff::gdal_metadata::BandMetadata;
 use crate::geotiff::geokeys::{self, tag, GeoKeys};
 
 /// Block grid of band 1. Strips are blocks `width` wide.
@@ -316,6 +317,9 @@ pub(super) fn parse<R: Read + Seek>(
 
     let georef = read_georeferencing(path, d)?;
     let nodata = ascii_tag(path, d, tag::GDAL_NODATA)?.and_then(|s| geokeys::parse_gdal_nodata(&s));
+    let band = ascii_tag(path, d, tag::GDAL_METADATA)?
+        .map(|xml| BandMetadata::parse(xml.trim_end_matches('\0')))
+        .unwrap_or_default();
     let samples_in_block = if planar == 2 {
         1
     } else {
@@ -356,6 +360,7 @@ pub(super) fn parse<R: Read + Seek>(
         band_count,
         predictor,
         pixel_is_point: georef.pixel_is_point,
+        band,
     };
     Ok(ParsedTiff { info, layout })
 }

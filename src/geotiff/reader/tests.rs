@@ -105,6 +105,11 @@ fn check_info(info: &GeoTiffInfo, rec: &Value) {
         .and_then(Value::as_bool)
         .unwrap_or(false);
     assert_eq!(info.pixel_is_point, point, "{file} pixel-is-point");
+    let number = |key: &str, default: f64| rec.get(key).and_then(Value::as_f64).unwrap_or(default);
+    assert_eq!(info.band.scale, number("scale", 1.0), "{file} scale");
+    assert_eq!(info.band.offset, number("offset", 0.0), "{file} offset");
+    let unit = rec.get("height_unit").and_then(Value::as_str);
+    assert_eq!(info.band.unit.as_deref(), unit, "{file} unit");
 }
 
 fn read_all(path: &Path) -> (GeoTiffInfo, Vec<f32>) {
