@@ -20,6 +20,7 @@ mod convert;
 mod decode;
 mod direct;
 mod layout;
+mod lerc;
 #[cfg(test)]
 mod tests;
 
@@ -45,7 +46,7 @@ pub enum GeoTiffError {
     Truncated { path: PathBuf, detail: String },
     #[error("{}: corrupt TIFF: {detail}", .path.display())]
     Corrupt { path: PathBuf, detail: String },
-    #[error("{}: unsupported compression {name} (TIFF code {code}); supported: none, LZW, Deflate, ZSTD, PackBits", .path.display())]
+    #[error("{}: unsupported compression {name} (TIFF code {code}); supported: none, LZW, Deflate, ZSTD, PackBits, LERC (alone, with Deflate or ZSTD)", .path.display())]
     UnsupportedCompression {
         path: PathBuf,
         name: String,
@@ -148,7 +149,8 @@ pub struct GeoTiffInfo {
     pub width: u64,
     pub height: u64,
     pub sample_type: SampleType,
-    /// "none", "lzw", "deflate", "zstd" or "packbits".
+    /// "none", "lzw", "deflate", "zstd", "packbits", "lerc", "lerc_deflate"
+    /// or "lerc_zstd" (GDAL's names).
     pub compression: String,
     pub tiled: bool,
     /// Tile size, or (width, rows per strip) for a stripped file.

@@ -277,6 +277,35 @@ fn a_utm_zone_written_as_user_defined_joins_its_epsg_twin() {
     assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
 }
 
+/// (valid pixels, min, max, mean) of DSM `id` in `store`, from `info --json`.
+fn height_stats(store: &Path, id: &str) -> (u64, f64, f64, f64) {
+    let out = dsmstream(&["info", store.to_str().unwrap(), "--json"]);
+    let catalog: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let dsms = catalog["dsms"].as_array().unwrap();
+    let dsm = dsms.iter().find(|d| d["id"] == id).unwrap();
+    let get = |k: &str| dsm["height_stats"][k].as_f64().unwrap();
+    let count = dsm["valid_count"].as_u64().unwrap();
+    (count, get("min"), get("max"), get("mean"))
+}
+
+/// A DSM stored with LERC (as ESRI tools and GDAL's COMPRESS=LERC_ZSTD write
+/// it) is ingested to the same heights as the same raster stored with Deflate.
+#[test]
+fn a_lerc_dsm_is_ingested_like_its_deflate_twin() {
+    let tmp = tempfile::tempdir().unwrap();
+    let geotiff = fixtures().join("geotiff");
+    let store = tmp.path().join("c.zarr");
+    let lerc = geotiff.join("f32_tile_lerc_zstd.tif");
+    let deflate = geotiff.join("f32_tile_deflate.tif");
+    assert_ok(&ingest(&[&lerc, &deflate], &store, &[]));
+    let (twin, lerc) = (
+        height_stats(&store, "f32_tile_deflate"),
+        height_stats(&store, "f32_tile_lerc_zstd"),
+    );
+    assert_eq!(lerc, twin);
+    assert!(twin.0 > 2000, "{twin:?}");
+}
+
 /// Heights stored as integers with GDAL's band scale and offset (centimetres
 /// about 100 m) are ingested in metres, equal to the same surface stored as
 /// Float32; a band whose unit is feet is refused by name, nothing written.
@@ -288,20 +317,7 @@ fn gdal_band_scale_and_offset_give_metres_and_a_band_in_feet_is_refused() {
     let scaled = geotiff.join("i16_scale_offset.tif");
     let float = geotiff.join("f32_tile_deflate.tif");
     assert_ok(&ingest(&[&scaled, &float], &store, &[]));
-    let out = dsmstream(&["info", store.to_str().unwrap(), "--json"]);
-    let catalog: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    let stats = |id: &str| {
-        let dsm = catalog["dsms"].as_array().unwrap().iter();
-        let dsm = dsm.clone().find(|d| d["id"] == id).unwrap().clone();
-        let h = &dsm["height_stats"];
-        let get = |k: &str| h[k].as_f64().unwrap();
-        (
-            dsm["valid_count"].as_u64().unwrap(),
-            get("min"),
-            get("max"),
-            get("mean"),
-        )
-    };
+    let stats = |id: &str| height_stats(&store, id);
     let (n_scaled, lo, hi, mean) = stats("i16_scale_offset");
     let (n_float, lo_f, hi_f, mean_f) = stats("f32_tile_deflate");
     assert_eq!(n_scaled, n_float);

@@ -363,6 +363,25 @@ def main():
                                   transform=from_origin(250000.0, 5200000.0, 2.0, 2.0)),
                             {"custom_crs": True}))
 
+    # LERC (ESRI's codec; GDAL COMPRESS=LERC, LERC_DEFLATE, LERC_ZSTD): lossless
+    # and within a MAX_Z_ERROR, tiles and strips, integer and float samples,
+    # no-data holes (the blob's mask), two bands pixel-interleaved.
+    for kind, layout, comp, extra in [
+        ("f32", "tile", "lerc", {}), ("f32", "tile", "lerc_deflate", {}),
+        ("f32", "tile", "lerc_zstd", {}), ("f32", "strip", "lerc", {}),
+        ("f64", "tile", "lerc_zstd", {}), ("i16", "tile", "lerc_deflate", {}),
+        ("u16", "strip", "lerc", {}),
+    ]:
+        data, nodata = raster(kind)
+        good.append(expect_good(write(f"{kind}_{layout}_{comp}.tif", data, nodata, compress=comp,
+                                      tiled=layout == "tile", **extra)))
+    data, nodata = raster("f32")
+    good.append(expect_good(write("f32_tile_lerc_lossy.tif", data, nodata, compress="lerc",
+                                  tiled=True, max_z_error=0.01)))
+    two = np.stack([data, data * 2.0])
+    good.append(expect_good(write("f32_2band_pixel_lerc.tif", two, nodata, count=2,
+                                  interleave="pixel", compress="lerc", tiled=True)))
+
     # GDAL band metadata (GDAL_METADATA tag): heights stored as centimetres
     # about 100 m (physical = raw * 0.01 + 100), and a band whose unit is feet.
     z, holes = surface()
@@ -400,8 +419,9 @@ def main():
     bad.append({"file": "bad_south_up.tif", "error": "rotated"})
     write("bad_no_georef.tif", data, nodata, crs=None, transform=None, compress="deflate")
     bad.append({"file": "bad_no_georef.tif", "error": "no_georef"})
-    write("bad_lerc.tif", data, nodata, compress="lerc", tiled=True)
-    bad.append({"file": "bad_lerc.tif", "error": "compression"})
+    # LERC whose blobs another compression wraps than GDAL's two (patched: 9)
+    patch_tag("f32_tile_lerc_zstd.tif", "bad_lerc_wrapping.tif", 50674, [4, 9])
+    bad.append({"file": "bad_lerc_wrapping.tif", "error": "compression"})
     d8, _ = raster("u8")
     write("bad_jpeg.tif", d8, None, compress="jpeg", tiled=True)
     bad.append({"file": "bad_jpeg.tif", "error": "compression"})

@@ -17,6 +17,7 @@ use tiff::{TiffError, TiffFormatError, TiffUnsupportedError};
 use super::convert::convert;
 use super::direct::{DirectCodec, InflateError, Inflater};
 use super::layout::BlockLayout;
+use super::lerc;
 use super::GeoTiffError;
 
 /// The file's bytes, shared by every decoder.
@@ -217,6 +218,9 @@ impl BlockDecoder {
             }
             return Ok(());
         }
+        if let Some(wrapping) = l.lerc {
+            return self.decode_lerc(wrapping, (bx, by), sink);
+        }
         let popped = self.idle.lock().unwrap_or_else(|p| p.into_inner()).pop();
         let mut worker = match popped {
             Some(w) => w,
@@ -335,6 +339,52 @@ impl BlockDecoder {
             unsafe {
                 sink.write_segment(row, x0, w as usize, |seg| {
                     codec.row_to_f32(src, nodata, seg)
+                })
+            };
+        }
+        Ok(())
+    }
+}
+
+impl BlockDecoder {
+    /// [`decode_into`](Self::decode_into) for a LERC block (not sparse):
+    /// unwrap and decode its blob from the map, then write band 1 of each
+    /// needed row into `sink`, masked pixels and no-data as NaN.
+    fn decode_lerc(
+        &self,
+        wrapping: lerc::Wrapping,
+        (bx, by): (u64, u64),
+        sink: &RowSink<'_>,
+    ) -> Result<(), GeoTiffError> {
+        let l = &self.layout;
+        let (w, h) = l.block_data_dims(bx, by);
+        let (x0, top) = ((bx * l.block_width) as usize, by * l.block_height);
+        let index = l.block_index(bx, by);
+        let (offset, count) = (l.offsets[index] as usize, l.byte_counts[index] as usize);
+        let stored = &self.map.as_ref()[offset..offset + count];
+        let corrupt = |detail: String| GeoTiffError::Corrupt {
+            path: self.path.clone(),
+            detail: format!("block ({bx}, {by}) does not decode: {detail}"),
+        };
+        let block = lerc::decode(wrapping, stored, &mut Vec::new()).map_err(corrupt)?;
+        if block.width < w as usize || block.height < h as usize {
+            return Err(corrupt(format!(
+                "its LERC blob is {} x {}, the block {w} x {h}",
+                block.width, block.height
+            )));
+        }
+        let nodata = self.nodata.and_then(|v| (!v.is_nan()).then_some(v as f32));
+        for row in top.max(sink.first_row)..(top + h).min(sink.end_row) {
+            let r = (row - top) as usize;
+            // SAFETY: this task owns block (bx, by).
+            unsafe {
+                sink.write_segment(row, x0, w as usize, |seg| {
+                    for (c, out) in seg.iter_mut().enumerate() {
+                        *out = match block.get(c, r).map(|v| v as f32) {
+                            Some(v) if Some(v) != nodata => v,
+                            _ => f32::NAN,
+                        };
+                    }
                 })
             };
         }

@@ -11,6 +11,7 @@ use tiff::tags::Tag;
 
 use super::decode::tiff_error;
 use super::direct::DirectCodec;
+use super::lerc;
 use super::{GeoTiffError, GeoTiffInfo, SampleType};
 use crate::geotiff::gdal_metadata::BandMetadata;
 use crate::geotiff::geokeys::{self, tag, GeoKeys};
@@ -29,6 +30,8 @@ pub(super) struct BlockLayout {
     pub offsets: Vec<u64>,
     /// Set when the blocks decode without the `tiff` crate (see `direct`).
     pub direct: Option<DirectCodec>,
+    /// Set for LERC blocks, with what wraps each blob (see `lerc`).
+    pub lerc: Option<lerc::Wrapping>,
     /// Samples interleaved per pixel in a decoded block (1 for planar files).
     pub samples_in_block: usize,
     pub sample_type: SampleType,
@@ -93,7 +96,7 @@ pub(super) fn compression_name(code: u16) -> &'static str {
         34661 => "JBIG",
         34676 | 34677 => "SGI LogLuv",
         34712 => "JPEG 2000",
-        34887 => "LERC",
+        34887 => "lerc",
         34925 => "LZMA",
         50000 => "zstd",
         50001 => "WebP",
@@ -227,13 +230,34 @@ pub(super) fn parse<R: Read + Seek>(
         });
     }
     let compression = u16s(path, d, Tag::Compression, 1)?[0];
-    if !matches!(compression, 1 | 5 | 8 | 32946 | 32773 | 50000) {
+    if !matches!(
+        compression,
+        1 | 5 | 8 | 32946 | 32773 | 50000 | lerc::COMPRESSION
+    ) {
         return Err(GeoTiffError::UnsupportedCompression {
             path: p(),
             name: compression_name(compression).to_string(),
             code: compression,
         });
     }
+    let lerc = if compression == lerc::COMPRESSION {
+        let parameters = d
+            .find_tag_unsigned_vec::<u64>(Tag::Unknown(lerc::PARAMETERS_TAG))
+            .map_err(terr)?;
+        let wrapping = lerc::Wrapping::from_parameters(parameters.as_deref());
+        Some(
+            wrapping.ok_or_else(|| GeoTiffError::UnsupportedCompression {
+                path: p(),
+                name: format!(
+                    "LERC with additional compression {} (LercParameters)",
+                    parameters.unwrap_or_default().get(1).copied().unwrap_or(0)
+                ),
+                code: compression,
+            })?,
+        )
+    } else {
+        None
+    };
     let bits = u16s(path, d, Tag::BitsPerSample, 1)?;
     let formats = u16s(path, d, Tag::SampleFormat, 1)?;
     let band_count = u16s(path, d, Tag::SamplesPerPixel, 1)?[0];
@@ -334,6 +358,7 @@ pub(super) fn parse<R: Read + Seek>(
         blocks_across,
         byte_counts,
         offsets,
+        lerc,
         direct: DirectCodec::for_tags(
             compression,
             predictor,
@@ -349,7 +374,12 @@ pub(super) fn parse<R: Read + Seek>(
         width,
         height,
         sample_type,
-        compression: compression_name(compression).to_string(),
+        compression: match lerc {
+            Some(lerc::Wrapping::Deflate) => "lerc_deflate",
+            Some(lerc::Wrapping::Zstd) => "lerc_zstd",
+            _ => compression_name(compression),
+        }
+        .to_string(),
         tiled,
         block_width: block_width as u32,
         block_height: block_height as u32,
