@@ -21,6 +21,7 @@ mod decode;
 mod direct;
 mod layout;
 mod lerc;
+mod mask;
 #[cfg(test)]
 mod tests;
 
@@ -171,12 +172,17 @@ pub struct GeoTiffInfo {
     /// Band 1's scale, offset and unit from GDAL's metadata: values read are
     /// `raw * scale + offset` (no-data matched on the raw values first).
     pub band: BandMetadata,
+    /// The file has GDAL's internal mask band (a transparency-mask IFD):
+    /// pixels it masks are read as NaN.
+    pub internal_mask: bool,
 }
 
 /// One open GeoTIFF. `Send`, not meant to be shared: each worker opens its own.
 pub struct GeoTiffReader {
     info: GeoTiffInfo,
     blocks: BlockDecoder,
+    /// GDAL's internal mask band, when the file has one.
+    mask: Option<mask::MaskBand>,
     /// The last block row decoded for a request that covered only part of it.
     kept: KeptBlockRow,
 }
@@ -210,13 +216,16 @@ impl GeoTiffReader {
         let mut decoder = decode::new_decoder(&map).map_err(|e| decode::tiff_error(path, e))?;
         let bigtiff = map.as_ref()[2..4] == [43, 0] || map.as_ref()[2..4] == [0, 43];
         let little_endian = &map.as_ref()[..2] == b"II";
-        let parsed = layout::parse(path, &mut decoder, file_len, bigtiff, little_endian)?;
+        let mut parsed = layout::parse(path, &mut decoder, file_len, bigtiff, little_endian)?;
+        let mask = mask::MaskBand::find(path, &map, parsed.info.width, parsed.info.height)?;
+        parsed.info.internal_mask = mask.is_some();
         let blocks = BlockDecoder::new(path, map, parsed.layout, parsed.info.nodata, decoder);
         tracing::debug!(path = %path.display(), width = parsed.info.width, height = parsed.info.height,
             compression = %parsed.info.compression, "geotiff opened");
         Ok(GeoTiffReader {
             info: parsed.info,
             blocks,
+            mask,
             kept: KeptBlockRow {
                 block_row: None,
                 values: Vec::new(),
@@ -281,6 +290,9 @@ impl GeoTiffReader {
             let sink = RowSink::new(out, width as usize, row0);
             self.blocks
                 .decode_block_rows(full_first..=full_last, &sink)?;
+        }
+        if let Some(mask) = self.mask.as_mut() {
+            mask.apply(row0, out)?;
         }
         if self.info.band.rescales() {
             let (scale, offset) = (self.info.band.scale, self.info.band.offset);

@@ -306,6 +306,25 @@ fn a_lerc_dsm_is_ingested_like_its_deflate_twin() {
     assert!(twin.0 > 2000, "{twin:?}");
 }
 
+/// A DSM whose no-data is GDAL's internal mask band (no no-data value, the
+/// masked pixels hold 0) is ingested with those pixels as no-data: the same
+/// heights as its twin with a no-data value, no zeros.
+#[test]
+fn gdal_s_internal_mask_makes_no_data() {
+    let tmp = tempfile::tempdir().unwrap();
+    let geotiff = fixtures().join("geotiff");
+    let store = tmp.path().join("c.zarr");
+    let masked = geotiff.join("f32_tile_deflate_mask.tif");
+    let nodata = geotiff.join("f32_tile_deflate.tif");
+    assert_ok(&ingest(&[&masked, &nodata], &store, &[]));
+    let (twin, masked) = (
+        height_stats(&store, "f32_tile_deflate"),
+        height_stats(&store, "f32_tile_deflate_mask"),
+    );
+    assert_eq!(masked, twin);
+    assert!(masked.1 > 50.0, "masked zeros read as heights: {masked:?}");
+}
+
 /// Heights stored as integers with GDAL's band scale and offset (centimetres
 /// about 100 m) are ingested in metres, equal to the same surface stored as
 /// Float32; a band whose unit is feet is refused by name, nothing written.

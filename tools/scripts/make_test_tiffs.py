@@ -83,7 +83,7 @@ def raster(kind, nodata=None):
 
 def write(name, data, nodata, compress=None, tiled=False, block=16, strip_rows=7,
           predictor=None, bigtiff=False, crs=UTM, transform=GT_UTM, point=False,
-          count=1, interleave="pixel", **extra):
+          count=1, interleave="pixel", mask=None, **extra):
     path = os.path.join(OUT, name)
     profile = dict(driver="GTiff", width=data.shape[-1], height=data.shape[-2],
                    count=count, dtype=data.dtype.name, interleave=interleave)
@@ -104,13 +104,15 @@ def write(name, data, nodata, compress=None, tiled=False, block=16, strip_rows=7
     if bigtiff:
         profile["BIGTIFF"] = "YES"
     profile.update(extra)
-    with rasterio.open(path, "w", **profile) as ds:
+    with rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True), rasterio.open(path, "w", **profile) as ds:
         if point:
             ds.update_tags(AREA_OR_POINT="Point")
         if count == 1:
             ds.write(data, 1)
         else:
             ds.write(data)
+        if mask is not None:
+            ds.write_mask(mask)
     return name
 
 
@@ -381,6 +383,19 @@ def main():
     two = np.stack([data, data * 2.0])
     good.append(expect_good(write("f32_2band_pixel_lerc.tif", two, nodata, count=2,
                                   interleave="pixel", compress="lerc", tiled=True)))
+
+    # GDAL's internal mask band (no no-data value; masked pixels hold 0):
+    # strips and tiles, every compression GDAL gives the mask.
+    _, holes = surface()
+    for kind, layout, comp in [("f32", "tile", "deflate"), ("i16", "strip", "lzw"),
+                               ("f32", "strip", "packbits"), ("u16", "tile", "zstd"),
+                               ("f32", "tile", None), ("f32", "tile", "lerc_zstd")]:
+        zeros, _ = raster(kind)
+        zeros[holes] = 0
+        name = f"{kind}_{layout}_{comp or 'none'}_mask.tif"
+        write(name, zeros, None, compress=comp, tiled=layout == "tile",
+              mask=np.where(holes, 0, 255).astype("uint8"))
+        good.append(expect_good(name, {"internal_mask": True}))
 
     # GDAL band metadata (GDAL_METADATA tag): heights stored as centimetres
     # about 100 m (physical = raw * 0.01 + 100), and a band whose unit is feet.

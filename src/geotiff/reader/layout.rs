@@ -391,6 +391,7 @@ pub(super) fn parse<R: Read + Seek>(
         predictor,
         pixel_is_point: georef.pixel_is_point,
         band,
+        internal_mask: false,
     };
     Ok(ParsedTiff { info, layout })
 }

@@ -108,6 +108,8 @@ fn check_info(info: &GeoTiffInfo, rec: &Value) {
     let number = |key: &str, default: f64| rec.get(key).and_then(Value::as_f64).unwrap_or(default);
     assert_eq!(info.band.scale, number("scale", 1.0), "{file} scale");
     assert_eq!(info.band.offset, number("offset", 0.0), "{file} offset");
+    let masked = rec.get("internal_mask").and_then(Value::as_bool);
+    assert_eq!(info.internal_mask, masked.unwrap_or(false), "{file} mask");
     let unit = rec.get("height_unit").and_then(Value::as_str);
     assert_eq!(info.band.unit.as_deref(), unit, "{file} unit");
 }
