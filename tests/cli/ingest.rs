@@ -288,20 +288,27 @@ fn height_stats(store: &Path, id: &str) -> (u64, f64, f64, f64) {
     (count, get("min"), get("max"), get("mean"))
 }
 
+/// Ingest fixture `file` (fixtures/geotiff) beside `f32_tile_deflate.tif`,
+/// the same surface stored plainly with a no-data value; the two heights'
+/// (valid pixels, min, max, mean).
+fn ingested_beside_the_plain_twin(file: &str) -> [(u64, f64, f64, f64); 2] {
+    let tmp = tempfile::tempdir().unwrap();
+    let geotiff = fixtures().join("geotiff");
+    let store = tmp.path().join("c.zarr");
+    let twin = geotiff.join("f32_tile_deflate.tif");
+    assert_ok(&ingest(&[&geotiff.join(file), &twin], &store, &[]));
+    let id = file.trim_end_matches(".tif");
+    [
+        height_stats(&store, id),
+        height_stats(&store, "f32_tile_deflate"),
+    ]
+}
+
 /// A DSM stored with LERC (as ESRI tools and GDAL's COMPRESS=LERC_ZSTD write
 /// it) is ingested to the same heights as the same raster stored with Deflate.
 #[test]
 fn a_lerc_dsm_is_ingested_like_its_deflate_twin() {
-    let tmp = tempfile::tempdir().unwrap();
-    let geotiff = fixtures().join("geotiff");
-    let store = tmp.path().join("c.zarr");
-    let lerc = geotiff.join("f32_tile_lerc_zstd.tif");
-    let deflate = geotiff.join("f32_tile_deflate.tif");
-    assert_ok(&ingest(&[&lerc, &deflate], &store, &[]));
-    let (twin, lerc) = (
-        height_stats(&store, "f32_tile_deflate"),
-        height_stats(&store, "f32_tile_lerc_zstd"),
-    );
+    let [lerc, twin] = ingested_beside_the_plain_twin("f32_tile_lerc_zstd.tif");
     assert_eq!(lerc, twin);
     assert!(twin.0 > 2000, "{twin:?}");
 }
@@ -311,16 +318,7 @@ fn a_lerc_dsm_is_ingested_like_its_deflate_twin() {
 /// heights as its twin with a no-data value, no zeros.
 #[test]
 fn gdal_s_internal_mask_makes_no_data() {
-    let tmp = tempfile::tempdir().unwrap();
-    let geotiff = fixtures().join("geotiff");
-    let store = tmp.path().join("c.zarr");
-    let masked = geotiff.join("f32_tile_deflate_mask.tif");
-    let nodata = geotiff.join("f32_tile_deflate.tif");
-    assert_ok(&ingest(&[&masked, &nodata], &store, &[]));
-    let (twin, masked) = (
-        height_stats(&store, "f32_tile_deflate"),
-        height_stats(&store, "f32_tile_deflate_mask"),
-    );
+    let [masked, twin] = ingested_beside_the_plain_twin("f32_tile_deflate_mask.tif");
     assert_eq!(masked, twin);
     assert!(masked.1 > 50.0, "masked zeros read as heights: {masked:?}");
 }
@@ -330,21 +328,15 @@ fn gdal_s_internal_mask_makes_no_data() {
 /// Float32; a band whose unit is feet is refused by name, nothing written.
 #[test]
 fn gdal_band_scale_and_offset_give_metres_and_a_band_in_feet_is_refused() {
-    let tmp = tempfile::tempdir().unwrap();
-    let geotiff = fixtures().join("geotiff");
-    let store = tmp.path().join("c.zarr");
-    let scaled = geotiff.join("i16_scale_offset.tif");
-    let float = geotiff.join("f32_tile_deflate.tif");
-    assert_ok(&ingest(&[&scaled, &float], &store, &[]));
-    let stats = |id: &str| height_stats(&store, id);
-    let (n_scaled, lo, hi, mean) = stats("i16_scale_offset");
-    let (n_float, lo_f, hi_f, mean_f) = stats("f32_tile_deflate");
+    let [(n_scaled, lo, hi, mean), (n_float, lo_f, hi_f, mean_f)] =
+        ingested_beside_the_plain_twin("i16_scale_offset.tif");
     assert_eq!(n_scaled, n_float);
     // centimetre integers: within half a centimetre of the float surface
     for (a, b) in [(lo, lo_f), (hi, hi_f), (mean, mean_f)] {
         assert!((a - b).abs() <= 0.005 + 1e-6, "{a} vs {b}");
     }
-    let feet = geotiff.join("f32_units_ft.tif");
+    let tmp = tempfile::tempdir().unwrap();
+    let feet = fixtures().join("geotiff").join("f32_units_ft.tif");
     let store = tmp.path().join("ft.zarr");
     let out = ingest(&[&feet], &store, &[]);
     assert_refused(

@@ -293,7 +293,31 @@ impl BlockDecoder {
     }
 }
 
+/// Block (bx, by) of band 1 as stored: its data size (edge blocks
+/// clipped), its first column and row in the image, and its bytes in the map.
+struct StoredBlock<'m> {
+    w: u64,
+    h: u64,
+    x0: usize,
+    top: u64,
+    bytes: &'m [u8],
+}
+
 impl BlockDecoder {
+    fn stored_block(&self, bx: u64, by: u64) -> StoredBlock<'_> {
+        let l = &self.layout;
+        let (w, h) = l.block_data_dims(bx, by);
+        let index = l.block_index(bx, by);
+        let (offset, count) = (l.offsets[index] as usize, l.byte_counts[index] as usize);
+        StoredBlock {
+            w,
+            h,
+            x0: (bx * l.block_width) as usize,
+            top: by * l.block_height,
+            bytes: &self.map.as_ref()[offset..offset + count],
+        }
+    }
+
     /// [`decode_into`](Self::decode_into) for a block the direct codec reads
     /// (a non-sparse block): inflate it from the map, then undo the predictor
     /// and convert each needed row straight into `sink`.
@@ -305,11 +329,13 @@ impl BlockDecoder {
         sink: &RowSink<'_>,
     ) -> Result<(), GeoTiffError> {
         let l = &self.layout;
-        let (w, h) = l.block_data_dims(bx, by);
-        let (x0, top) = ((bx * l.block_width) as usize, by * l.block_height);
-        let index = l.block_index(bx, by);
-        let (offset, count) = (l.offsets[index] as usize, l.byte_counts[index] as usize);
-        let compressed = &self.map.as_ref()[offset..offset + count];
+        let StoredBlock {
+            w,
+            h,
+            x0,
+            top,
+            bytes: compressed,
+        } = self.stored_block(bx, by);
         let row_bytes = l.block_width as usize * 4;
         let len = row_bytes.saturating_mul(h as usize);
         try_resize(&self.path, &mut worker.bytes, len, 0)?;
@@ -356,12 +382,13 @@ impl BlockDecoder {
         (bx, by): (u64, u64),
         sink: &RowSink<'_>,
     ) -> Result<(), GeoTiffError> {
-        let l = &self.layout;
-        let (w, h) = l.block_data_dims(bx, by);
-        let (x0, top) = ((bx * l.block_width) as usize, by * l.block_height);
-        let index = l.block_index(bx, by);
-        let (offset, count) = (l.offsets[index] as usize, l.byte_counts[index] as usize);
-        let stored = &self.map.as_ref()[offset..offset + count];
+        let StoredBlock {
+            w,
+            h,
+            x0,
+            top,
+            bytes: stored,
+        } = self.stored_block(bx, by);
         let corrupt = |detail: String| GeoTiffError::Corrupt {
             path: self.path.clone(),
             detail: format!("block ({bx}, {by}) does not decode: {detail}"),

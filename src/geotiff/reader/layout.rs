@@ -209,6 +209,80 @@ fn u16s<R: Read + Seek>(
         .unwrap_or_else(|| vec![default]))
 }
 
+/// The block grid of the IFD `d` is on: strips or tiles, their size, and
+/// the offset and byte count of each block of band 1, checked to lie in the
+/// file.
+pub(super) struct BlockGrid {
+    pub tiled: bool,
+    pub block_width: u64,
+    pub block_height: u64,
+    pub offsets: Vec<u64>,
+    pub byte_counts: Vec<u64>,
+}
+
+/// Read [`BlockGrid`] of a `width` x `height` image from the current IFD.
+pub(super) fn read_block_grid<R: Read + Seek>(
+    path: &Path,
+    d: &mut Decoder<R>,
+    width: u64,
+    height: u64,
+    file_len: u64,
+) -> Result<BlockGrid, GeoTiffError> {
+    let tiled = d.get_chunk_type() == ChunkType::Tile;
+    let (bw, bh) = d.chunk_dimensions();
+    let (block_width, block_height) = if tiled {
+        (u64::from(bw), u64::from(bh))
+    } else {
+        (width, u64::from(bh).min(height))
+    };
+    let (offsets_tag, counts_tag) = if tiled {
+        (Tag::TileOffsets, Tag::TileByteCounts)
+    } else {
+        (Tag::StripOffsets, Tag::StripByteCounts)
+    };
+    let mut offsets = d
+        .find_tag_unsigned_vec::<u64>(offsets_tag)
+        .map_err(|e| tiff_error(path, e))?
+        .unwrap_or_default();
+    let mut byte_counts = d
+        .find_tag_unsigned_vec::<u64>(counts_tag)
+        .map_err(|e| tiff_error(path, e))?
+        .unwrap_or_default();
+    let blocks_across = width.div_ceil(block_width);
+    let blocks_down = height.div_ceil(block_height);
+    let n = (blocks_across * blocks_down) as usize;
+    if offsets.len() < n || byte_counts.len() < n {
+        return Err(GeoTiffError::Corrupt {
+            path: path.to_path_buf(),
+            detail: format!(
+                "{n} blocks but {} offsets and {} byte counts",
+                offsets.len(),
+                byte_counts.len()
+            ),
+        });
+    }
+    offsets.truncate(n);
+    byte_counts.truncate(n);
+    for (i, (&o, &c)) in offsets.iter().zip(&byte_counts).enumerate() {
+        if c > 0 && o.checked_add(c).is_none_or(|e| e > file_len) {
+            return Err(GeoTiffError::Truncated {
+                path: path.to_path_buf(),
+                detail: format!(
+                    "block {i} spans bytes {o}..{} but the file has {file_len} bytes",
+                    o.saturating_add(c)
+                ),
+            });
+        }
+    }
+    Ok(BlockGrid {
+        tiled,
+        block_width,
+        block_height,
+        offsets,
+        byte_counts,
+    })
+}
+
 /// Read and validate the first IFD.
 pub(super) fn parse<R: Read + Seek>(
     path: &Path,
@@ -292,52 +366,14 @@ pub(super) fn parse<R: Read + Seek>(
         }
     }
     let planar = u16s(path, d, Tag::PlanarConfiguration, 1)?[0];
-    let tiled = d.get_chunk_type() == ChunkType::Tile;
-    let (bw, bh) = d.chunk_dimensions();
-    let (block_width, block_height) = if tiled {
-        (u64::from(bw), u64::from(bh))
-    } else {
-        (width, u64::from(bh).min(height))
-    };
-    let (offsets_tag, counts_tag) = if tiled {
-        (Tag::TileOffsets, Tag::TileByteCounts)
-    } else {
-        (Tag::StripOffsets, Tag::StripByteCounts)
-    };
-    let mut offsets = d
-        .find_tag_unsigned_vec::<u64>(offsets_tag)
-        .map_err(terr)?
-        .unwrap_or_default();
-    let mut byte_counts = d
-        .find_tag_unsigned_vec::<u64>(counts_tag)
-        .map_err(terr)?
-        .unwrap_or_default();
+    let BlockGrid {
+        tiled,
+        block_width,
+        block_height,
+        offsets,
+        byte_counts,
+    } = read_block_grid(path, d, width, height, file_len)?;
     let blocks_across = width.div_ceil(block_width);
-    let blocks_down = height.div_ceil(block_height);
-    let n = (blocks_across * blocks_down) as usize;
-    if offsets.len() < n || byte_counts.len() < n {
-        return Err(GeoTiffError::Corrupt {
-            path: p(),
-            detail: format!(
-                "{n} blocks but {} offsets and {} byte counts",
-                offsets.len(),
-                byte_counts.len()
-            ),
-        });
-    }
-    offsets.truncate(n);
-    byte_counts.truncate(n);
-    for (i, (&o, &c)) in offsets.iter().zip(&byte_counts).enumerate() {
-        if c > 0 && o.checked_add(c).is_none_or(|e| e > file_len) {
-            return Err(GeoTiffError::Truncated {
-                path: p(),
-                detail: format!(
-                    "block {i} spans bytes {o}..{} but the file has {file_len} bytes",
-                    o.saturating_add(c)
-                ),
-            });
-        }
-    }
 
     let georef = read_georeferencing(path, d)?;
     let nodata = ascii_tag(path, d, tag::GDAL_NODATA)?.and_then(|s| geokeys::parse_gdal_nodata(&s));

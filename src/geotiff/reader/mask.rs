@@ -51,7 +51,12 @@ impl MaskBand {
         };
         let mut d = new_decoder(map).map_err(terr)?;
         while d.more_images() {
-            d.next_image().map_err(terr)?;
+            // Band 1 was read already: an IFD after it the decoder cannot
+            // parse (an exotic overview) ends the search, not the file.
+            if let Err(e) = d.next_image() {
+                tracing::debug!(path = %path.display(), error = %e, "IFD after the first not read");
+                break;
+            }
             let subfile = d
                 .find_tag_unsigned::<u32>(Tag::NewSubfileType)
                 .map_err(terr)?;
@@ -77,47 +82,20 @@ impl MaskBand {
                     super::layout::compression_name(compression)
                 )));
             }
-            let tiled = d.get_chunk_type() == tiff::decoder::ChunkType::Tile;
-            let (bw, bh) = d.chunk_dimensions();
-            let (block_width, block_height) = if tiled {
-                (u64::from(bw), u64::from(bh))
-            } else {
-                (width, u64::from(bh).min(height))
-            };
-            let (offsets_tag, counts_tag) = if tiled {
-                (Tag::TileOffsets, Tag::TileByteCounts)
-            } else {
-                (Tag::StripOffsets, Tag::StripByteCounts)
-            };
-            let list = |d: &mut super::decode::TiffDecoder, t| {
-                d.find_tag_unsigned_vec::<u64>(t)
-                    .map(Option::unwrap_or_default)
-            };
-            let offsets = list(&mut d, offsets_tag).map_err(terr)?;
-            let byte_counts = list(&mut d, counts_tag).map_err(terr)?;
-            let blocks_across = width.div_ceil(block_width);
-            let blocks = blocks_across * height.div_ceil(block_height);
             let file_len = map.as_ref().len() as u64;
-            let in_file = (offsets.iter().zip(&byte_counts))
-                .all(|(&o, &c)| o.checked_add(c).is_some_and(|e| e <= file_len));
-            if (offsets.len() as u64) < blocks || (byte_counts.len() as u64) < blocks || !in_file {
-                return Err(GeoTiffError::Truncated {
-                    path: path.to_path_buf(),
-                    detail: "the internal mask's blocks lie beyond the file".to_string(),
-                });
-            }
+            let grid = super::layout::read_block_grid(path, &mut d, width, height, file_len)?;
             return Ok(Some(MaskBand {
                 path: path.to_path_buf(),
                 map: map.clone(),
                 width,
                 height,
-                block_width,
-                block_height,
-                blocks_across,
+                block_width: grid.block_width,
+                block_height: grid.block_height,
+                blocks_across: width.div_ceil(grid.block_width),
                 bits,
                 compression,
-                offsets,
-                byte_counts,
+                offsets: grid.offsets,
+                byte_counts: grid.byte_counts,
                 kept: None,
             }));
         }
