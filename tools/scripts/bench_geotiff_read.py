@@ -5,7 +5,8 @@ multi-threaded. The Rust side is timed by the ignored unit test
 `geotiff::reader::tests::bench_streaming_read` (see its doc comment).
 
 Usage:
-  python3 tools/scripts/bench_geotiff_read.py make /tmp/big.tif [size=20000] [tile=256]
+  python3 tools/scripts/bench_geotiff_read.py make /tmp/big.tif [size=20000] [tile=256] [compress=deflate]
+    (compress: any GDAL COMPRESS for Float32, e.g. deflate, zstd, lerc, lerc_deflate, lerc_zstd)
   python3 tools/scripts/bench_geotiff_read.py gdal /tmp/big.tif [band_rows=512]
 """
 
@@ -19,11 +20,11 @@ from rasterio.transform import from_origin
 from rasterio.windows import Window
 
 
-def make(path, size=20000, tile=256):
+def make(path, size=20000, tile=256, compress="deflate"):
     profile = dict(driver="GTiff", width=size, height=size, count=1, dtype="float32",
                    crs="EPSG:32617", transform=from_origin(600000.0, 4900000.0, 0.5, 0.5),
                    nodata=float("nan"), tiled=True, blockxsize=tile, blockysize=tile,
-                   compress="deflate", BIGTIFF="IF_SAFER", NUM_THREADS="ALL_CPUS")
+                   compress=compress, BIGTIFF="IF_SAFER", NUM_THREADS="ALL_CPUS")
     rng = np.random.default_rng(1)
     x = np.arange(size, dtype="float64")
     with rasterio.open(path, "w", **profile) as ds:
@@ -55,5 +56,5 @@ def gdal(path, band_rows=512):
 
 if __name__ == "__main__":
     cmd, path = sys.argv[1], sys.argv[2]
-    args = [int(a) for a in sys.argv[3:]]
+    args = [int(a) if a.isdigit() else a for a in sys.argv[3:]]
     {"make": make, "gdal": gdal}[cmd](path, *args)
