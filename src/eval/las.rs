@@ -34,6 +34,11 @@ impl LasSamples {
         let mut reader = Reader::from_path(path).map_err(|e| bad(e.to_string()))?;
         let header = reader.header().clone();
         let mut notes = Vec::new();
+        if let Some(unit) = non_metre_units(&header).first() {
+            return Err(bad(format!(
+                "{unit} in the point cloud's CRS, not metres: reproject it to the store's CRS first (e.g. pdal translate with filters.reprojection)"
+            )));
+        }
         let las_epsg = crs_epsg(&header);
         match (las_epsg, store.crs().and_then(|c| c.epsg)) {
             (Some(a), Some(b)) if a != b => {
@@ -107,6 +112,81 @@ pub fn on_surface(p: &las::Point, all_returns: bool) -> bool {
     !noise && !p.is_withheld && (p.return_number <= 1 || all_returns)
 }
 
+/// The units of length other than the metre the header's CRS names: its
+/// GeoKeyDirectory's unit keys (or the units of the EPSG codes it gives),
+/// else its WKT's.
+pub fn non_metre_units(header: &las::Header) -> Vec<String> {
+    use crate::geotiff::geokeys::{keys_non_metre_units, GeoKeyValue, GeoKeys};
+    use las::crs::GeoTiffData;
+    if let Ok(Some(geotiff)) = header.get_geotiff_crs() {
+        let entries = (geotiff.entries.iter())
+            .map(|e| {
+                let value = match &e.data {
+                    GeoTiffData::U16(v) => GeoKeyValue::Short(*v),
+                    GeoTiffData::Doubles(d) => GeoKeyValue::Doubles(d.clone()),
+                    GeoTiffData::String(s) => GeoKeyValue::Ascii(s.clone()),
+                };
+                (e.id, value)
+            })
+            .collect();
+        let found = keys_non_metre_units(&GeoKeys { entries });
+        if !found.is_empty() {
+            return found;
+        }
+    }
+    let wkt = header.get_wkt_crs_bytes().map(String::from_utf8_lossy);
+    wkt.map(|w| wkt_non_metre_units(&w)).unwrap_or_default()
+}
+
+/// The units of length of a WKT 1 or 2 CRS other than the metre: WKT 1
+/// `UNIT` nodes of a projected, vertical or local CRS (not the angle unit of
+/// its geographic base), WKT 2 `LENGTHUNIT` nodes; e.g. "unit US survey foot
+/// (0.304800609601219 m)".
+pub fn wkt_non_metre_units(wkt: &str) -> Vec<String> {
+    const LENGTH_PARENTS: [&str; 5] = ["PROJCS", "VERT_CS", "LOCAL_CS", "GEOCCS", "VERTCS"];
+    let mut stack: Vec<&str> = Vec::new();
+    let mut found = Vec::new();
+    let mut word_start = 0;
+    for (k, ch) in wkt.char_indices() {
+        match ch {
+            '[' | '(' => {
+                let keyword = wkt[word_start..k].trim();
+                let length = keyword == "LENGTHUNIT"
+                    || (keyword == "UNIT"
+                        && stack.last().is_some_and(|p| LENGTH_PARENTS.contains(p)));
+                if length {
+                    if let Some(unit) = unit_not_metre(&wkt[k + 1..]) {
+                        if !found.contains(&unit) {
+                            found.push(unit);
+                        }
+                    }
+                }
+                stack.push(keyword);
+                word_start = k + 1;
+            }
+            ']' | ')' => {
+                stack.pop();
+                word_start = k + 1;
+            }
+            ',' => word_start = k + 1,
+            _ => {}
+        }
+    }
+    found
+}
+
+/// `"name",factor` at the start of a unit node's body, when the factor is
+/// not 1 (a metre).
+fn unit_not_metre(body: &str) -> Option<String> {
+    let body = body.trim_start().strip_prefix('"')?;
+    let (name, rest) = body.split_once('"')?;
+    let factor: String = (rest.trim_start().strip_prefix(',')?.trim_start().chars())
+        .take_while(|c| c.is_ascii_digit() || matches!(c, '.' | 'e' | 'E' | '-' | '+'))
+        .collect();
+    let factor: f64 = factor.parse().ok()?;
+    ((factor - 1.0).abs() > 1e-9).then(|| format!("unit {name} ({factor} m)"))
+}
+
 /// EPSG code of the horizontal CRS recorded in the header, if any.
 pub fn crs_epsg(header: &las::Header) -> Option<u32> {
     if let Some(wkt) = header.get_wkt_crs_bytes() {
@@ -178,5 +258,24 @@ mod tests {
         assert_eq!(wkt_epsg("LOCAL_CS[\"x\"]"), None);
         let no_own = r#"PROJCS["x",GEOGCS["WGS 84",AUTHORITY["EPSG","4326"]],UNIT["metre",1,AUTHORITY["EPSG","9001"]]]"#;
         assert_eq!(wkt_epsg(no_own), None);
+    }
+
+    #[test]
+    fn wkt_units_of_length_but_not_angles() {
+        use super::wkt_non_metre_units;
+        let feet = r#"PROJCS["NAD83(HARN) / Oregon GIC Lambert (ft)",GEOGCS["NAD83(HARN)",UNIT["degree",0.0174532925199433]],PROJECTION["Lambert_Conformal_Conic_2SP"],UNIT["foot",0.3048,AUTHORITY["EPSG","9002"]]]"#;
+        assert_eq!(wkt_non_metre_units(feet), ["unit foot (0.3048 m)"]);
+        let utm = r#"PROJCS["WGS 84 / UTM zone 16N",GEOGCS["WGS 84",UNIT["degree",0.0174532925199433]],UNIT["metre",1,AUTHORITY["EPSG","9001"]]]"#;
+        assert!(wkt_non_metre_units(utm).is_empty());
+        let heights_in_feet = r#"COMPD_CS["x",PROJCS["UTM",GEOGCS["g",UNIT["degree",0.01745]],UNIT["metre",1]],VERT_CS["NAVD88 height (ftUS)",VERT_DATUM["North American Vertical Datum 1988",2005],UNIT["US survey foot",0.304800609601219]]]"#;
+        assert_eq!(
+            wkt_non_metre_units(heights_in_feet),
+            ["unit US survey foot (0.304800609601219 m)"]
+        );
+        let wkt2 = r#"PROJCRS["x",BASEGEOGCRS["g",ANGLEUNIT["degree",0.0174532925199433]],CS[Cartesian,2],AXIS["easting",east,LENGTHUNIT["US survey foot",0.304800609601219]]]"#;
+        assert_eq!(
+            wkt_non_metre_units(wkt2),
+            ["unit US survey foot (0.304800609601219 m)"]
+        );
     }
 }

@@ -237,11 +237,17 @@ const METRE: u16 = 9001;
 /// the EPSG definition. Empty when every unit is the metre or none is known,
 /// or the keys cannot be parsed.
 pub fn non_metre_units(crs: &Crs) -> Vec<String> {
-    let mut found = Vec::new();
     let ascii = crs.geo_ascii.as_deref().unwrap_or("");
-    let Ok(keys) = GeoKeys::parse(&crs.geokeys, &crs.geo_doubles, ascii) else {
-        return found;
-    };
+    match GeoKeys::parse(&crs.geokeys, &crs.geo_doubles, ascii) {
+        Ok(keys) => keys_non_metre_units(&keys),
+        Err(_) => Vec::new(),
+    }
+}
+
+/// [`non_metre_units`] of parsed keys (a GeoTIFF's, or a LAS file's
+/// GeoKeyDirectory VLR).
+pub fn keys_non_metre_units(keys: &GeoKeys) -> Vec<String> {
+    let mut found = Vec::new();
     let by_code = |id, table| {
         let code = keys.short(id).filter(|&c| c != 0 && c != USER_DEFINED)?;
         Some((epsg_unit(table, code)?, code))

@@ -318,9 +318,15 @@ fn references_in_another_crs_or_elsewhere_are_refused() {
     };
     let utm16 = write("utm16.tif", epsg_crs(32616), 500_010.0);
     let far = write("far.tif", epsg_crs(32617), 700_000.0);
+    // PDAL's Autzen lidar, in feet: named for its unit, not compared in it
+    let feet = fixtures().join("real/pdal/autzen_trim.laz");
     for (path, needle) in [
         (&utm16, "differs from the store"),
         (&far, "does not overlap"),
+        (
+            &feet,
+            "horizontal unit foot (EPSG unit 9002) in the point cloud's CRS, not metres",
+        ),
     ] {
         let out = run(&[&"eval", &store, &"--reference", path]);
         let err = String::from_utf8_lossy(&out.stderr);
