@@ -152,14 +152,34 @@ fn geographic_srtm_is_refused_with_exit_2() {
     );
 }
 
+/// A 32 x 32 ramp of heights with this CRS and a pixel of `pixel` m from
+/// `origin` (top-left corner), written as `dir`/`name`.
+fn write_with_crs(
+    dir: &Path,
+    name: &str,
+    crs: dsmstream::geo::Crs,
+    origin: (f64, f64),
+    pixel: f64,
+) -> PathBuf {
+    use dsmstream::geo::GeoTransform;
+    use dsmstream::geotiff::writer::{write_geotiff_f32, CogOptions};
+    let options = CogOptions {
+        geotransform: GeoTransform::north_up(origin.0, origin.1, pixel, pixel),
+        crs,
+        ..Default::default()
+    };
+    let data: Vec<f32> = (0..32 * 32).map(|k| 150.0 + (k % 32) as f32).collect();
+    let path = dir.join(name);
+    write_geotiff_f32(&path, 32, 32, options, &data).unwrap();
+    path
+}
+
 /// A DSM in a CRS whose unit is the foot (US State Plane and Oregon Lambert
 /// rasters often are): every distance the tool reports is in metres, so the
 /// file is refused by name, its unit said, rather than registered in feet
 /// read as metres.
 #[test]
 fn a_dsm_in_feet_is_refused_with_its_unit() {
-    use dsmstream::geo::{Crs, GeoTransform};
-    use dsmstream::geotiff::writer::{write_geotiff_f32, CogOptions};
     let tmp = tempfile::tempdir().unwrap();
     let write = |name: &str, unit_key: Option<[u16; 4]>| {
         // EPSG:2992, NAD83 / Oregon GIC Lambert (ft), as GDAL writes it
@@ -169,19 +189,12 @@ fn a_dsm_in_feet_is_refused_with_its_unit() {
             1, 1, 0, count, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, 2992,
         ];
         geokeys.extend(unit_key.iter().flatten());
-        let options = CogOptions {
-            geotransform: GeoTransform::north_up(7_650_000.0, 700_000.0, 3.0, 3.0),
-            crs: Crs {
-                epsg: Some(2992),
-                geokeys,
-                ..Default::default()
-            },
+        let crs = dsmstream::geo::Crs {
+            epsg: Some(2992),
+            geokeys,
             ..Default::default()
         };
-        let data: Vec<f32> = (0..32 * 32).map(|k| 400.0 + (k % 32) as f32).collect();
-        let path = tmp.path().join(name);
-        write_geotiff_f32(&path, 32, 32, options, &data).unwrap();
-        path
+        write_with_crs(tmp.path(), name, crs, (7_650_000.0, 700_000.0), 3.0)
     };
     let feet = write("autzen_ft.tif", Some([3076, 0, 1, 9002]));
     let store = tmp.path().join("c.zarr");
@@ -211,24 +224,15 @@ fn a_dsm_in_feet_is_refused_with_its_unit() {
 /// producers), is one collection; a TM one degree off is another CRS.
 #[test]
 fn a_utm_zone_written_as_user_defined_joins_its_epsg_twin() {
-    use dsmstream::geo::{Crs, GeoTransform};
-    use dsmstream::geotiff::writer::{write_geotiff_f32, CogOptions};
     let tmp = tempfile::tempdir().unwrap();
     let write = |name: &str, geokeys: Vec<u16>, doubles: Vec<f64>, ascii: Option<&str>| {
-        let options = CogOptions {
-            geotransform: GeoTransform::north_up(500_000.0, 4_800_000.0, 1.0, 1.0),
-            crs: Crs {
-                geokeys,
-                geo_doubles: doubles,
-                geo_ascii: ascii.map(str::to_string),
-                ..Default::default()
-            },
+        let crs = dsmstream::geo::Crs {
+            geokeys,
+            geo_doubles: doubles,
+            geo_ascii: ascii.map(str::to_string),
             ..Default::default()
         };
-        let data: Vec<f32> = (0..64 * 64).map(|k| 150.0 + (k % 64) as f32).collect();
-        let path = tmp.path().join(name);
-        write_geotiff_f32(&path, 64, 64, options, &data).unwrap();
-        path
+        write_with_crs(tmp.path(), name, crs, (500_000.0, 4_800_000.0), 1.0)
     };
     let gdal = write(
         "gdal.tif",
