@@ -1,8 +1,8 @@
 //! Streaming GeoTIFF reader: opens a single-band elevation GeoTIFF (stripped or
-//! tiled; none, LZW, Deflate, ZSTD or PackBits; predictors 2 and 3; classic or
-//! BigTIFF; 8/16/32-bit integers or 32/64-bit floats), reports its size,
-//! georeferencing and no-data as GDAL would, and hands out rows as `f32` with
-//! no-data as NaN.
+//! tiled; none, LZW, Deflate, ZSTD, PackBits or LERC; predictors 2 and 3;
+//! classic or BigTIFF; 8/16/32-bit integers or 32/64-bit floats), reports its
+//! size, georeferencing and no-data as GDAL would, and hands out rows as `f32`
+//! with no-data as NaN.
 //!
 //! `read_rows` decodes only the strips or tiles that touch the requested rows,
 //! in parallel with rayon (one `tiff` decoder per worker, all reading one
@@ -11,10 +11,13 @@
 //! the block row a request covers only partly is kept, so reading a file top
 //! to bottom in any row step decodes each block once. A file stored as one
 //! giant strip is one block: it decodes in one call, and a partial read keeps
-//! the whole image. Multi-band files give band 1; internal mask IFDs and
-//! scale/offset metadata are ignored. Submodules: `layout` (tags to block grid
-//! and metadata), `decode` (blocks to `f32`), `convert` (samples to `f32`), `direct` (Deflate f32 blocks,
-//! predictor none or 3, decoded without the `tiff` crate: the fast ingest path).
+//! the whole image. Multi-band files give band 1. As GDAL reads them, GDAL's
+//! internal mask band makes its masked pixels NaN, and band 1's scale and
+//! offset (GDAL metadata) make the values `raw * scale + offset`.
+//! Submodules: `layout` (tags to block grid and metadata), `decode` (blocks
+//! to `f32`), `convert` (samples to `f32`), `direct` (Deflate f32 blocks,
+//! predictor none or 3, decoded without the `tiff` crate: the fast ingest
+//! path), `lerc` (LERC blocks), `mask` (the internal mask band).
 
 mod convert;
 mod decode;
