@@ -19,13 +19,18 @@ fn fixtures() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures")
 }
 
-const TIFFS: [&str; 6] = [
+const TIFFS: [&str; 11] = [
     "geotiff/f32_tile_deflate_p3.tif",
     "geotiff/i16_strip_lzw_bigtiff.tif",
     "geotiff/u16_tile_zstd.tif",
     "geotiff/f64_strip_packbits.tif",
     "geotiff/f32_model_transformation.tif",
     "synth/grid2x2/tile_00.tif",
+    "geotiff/f32_tile_lerc.tif",
+    "geotiff/f32_tile_lerc_zstd.tif",
+    "geotiff/i16_tile_lerc_deflate.tif",
+    "geotiff/f32_tile_deflate_mask.tif",
+    "geotiff/i16_scale_offset.tif",
 ];
 
 /// One byte mutation: position (as a fraction of the span) and new byte.
