@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Output;
 
-use crate::util::{assert_ok, bin, fixtures, text};
+use crate::util::{assert_ok, assert_refusal, bin, fixtures, text};
 
 fn fixture(rel: &str) -> PathBuf {
     fixtures().join("real").join(rel)
@@ -131,11 +131,7 @@ fn rerun_skips_force_replaces_touched_source_replaces() {
 /// An ingest refused as bad input: exit 2, one line on stderr naming `file`
 /// and saying `why`, and no store written.
 fn assert_refused(out: &Output, store: &Path, file: &str, why: &str) {
-    assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
-    let err = text(&out.stderr);
-    assert!(err.contains(file), "{err}");
-    assert!(err.contains(why), "{err}");
-    assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
+    assert_refusal(out, file, why);
     assert!(!store.exists(), "nothing written for a refused input");
 }
 
@@ -272,13 +268,11 @@ fn a_utm_zone_written_as_user_defined_joins_its_epsg_twin() {
     let (keys, doubles) = custom(-80.0);
     let off = write("off.tif", keys, doubles, Some("UTM 17 North (custom)|"));
     let out = ingest(&[&off], &store, &[]);
-    assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
-    let err = text(&out.stderr);
-    assert!(
-        err.contains("off.tif") && err.contains("differs from the collection's CRS EPSG:32617"),
-        "{err}"
+    assert_refusal(
+        &out,
+        "off.tif",
+        "differs from the collection's CRS EPSG:32617",
     );
-    assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
 }
 
 /// (valid pixels, min, max, mean) of DSM `id` in `store`, from `info --json`.

@@ -32,6 +32,15 @@ pub fn ok(out: Output) -> Output {
 
 /// Asserts the process succeeded (exit code, stdout and stderr in the
 /// failure message).
+/// A refusal as the project makes them: exit 2, one line on stderr naming
+/// `file` and saying `why`.
+pub fn assert_refusal(out: &Output, file: &str, why: &str) {
+    let err = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains(file) && err.contains(why), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "one line: {err}");
+}
+
 pub fn assert_ok(out: &Output) {
     assert!(
         out.status.success(),

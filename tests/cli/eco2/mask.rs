@@ -12,7 +12,7 @@ use dsmstream::geotiff::writer::{write_geotiff_f32, CogOptions};
 use dsmstream::synth::output::epsg_crs;
 
 use super::{error_m, matrix, rewrite, Box2, Truth};
-use crate::util::{dsmgen_tiles, fixtures, ingest, ok, run, text};
+use crate::util::{assert_refusal, dsmgen_tiles, fixtures, ingest, ok, run, text};
 
 /// Two generated 512 px tiles (0.5 m) of which tile_01 has the middle of the
 /// overlap raised by 5 m (a changed area larger than the unchanged one).
@@ -138,13 +138,7 @@ fn a_mask_excluding_a_changed_area_registers_the_pair_correctly() {
     let utm18 = p.dir.path().join("utm18.tif");
     write_tiff_mask(&utm18, area, p.raised, 32618);
     let out = run(&[&"pair", &p.store, &"tile_00", &"tile_01", &"--mask", &utm18]);
-    assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
-    let err = text(&out.stderr);
-    assert!(
-        err.contains("utm18.tif") && err.contains("EPSG:32618"),
-        "{err}"
-    );
-    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+    assert_refusal(&out, "utm18.tif", "EPSG:32618");
     // a mask with no stable cell in the overlap: said so, exit 2
     let elsewhere = p.dir.path().join("elsewhere.tif");
     write_tiff_mask(&elsewhere, area, p.overlap.grown(250.0), 32617);
