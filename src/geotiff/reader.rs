@@ -117,6 +117,9 @@ pub enum SampleType {
     I16,
     U32,
     I32,
+    /// IEEE half precision (GDAL writes it for Float32 with NBITS=16; GDAL
+    /// 3.11 names it Float16).
+    F16,
     F32,
     F64,
 }
@@ -125,7 +128,7 @@ impl SampleType {
     pub fn bytes(self) -> usize {
         match self {
             SampleType::U8 | SampleType::I8 => 1,
-            SampleType::U16 | SampleType::I16 => 2,
+            SampleType::U16 | SampleType::I16 | SampleType::F16 => 2,
             SampleType::U32 | SampleType::I32 | SampleType::F32 => 4,
             SampleType::F64 => 8,
         }
@@ -140,6 +143,7 @@ impl SampleType {
             SampleType::I16 => "Int16",
             SampleType::U32 => "UInt32",
             SampleType::I32 => "Int32",
+            SampleType::F16 => "Float16",
             SampleType::F32 => "Float32",
             SampleType::F64 => "Float64",
         }

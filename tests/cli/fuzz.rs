@@ -19,7 +19,7 @@ fn fixtures() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures")
 }
 
-const TIFFS: [&str; 11] = [
+const TIFFS: [&str; 12] = [
     "geotiff/f32_tile_deflate_p3.tif",
     "geotiff/i16_strip_lzw_bigtiff.tif",
     "geotiff/u16_tile_zstd.tif",
@@ -31,6 +31,7 @@ const TIFFS: [&str; 11] = [
     "geotiff/i16_tile_lerc_deflate.tif",
     "geotiff/f32_tile_deflate_mask.tif",
     "geotiff/i16_scale_offset.tif",
+    "geotiff/f16_strip_lzw_p3_bigendian.tif",
 ];
 
 /// One byte mutation: position (as a fraction of the span) and new byte.

@@ -311,6 +311,20 @@ fn a_lerc_dsm_is_ingested_like_its_deflate_twin() {
     assert!(twin.0 > 2000, "{twin:?}");
 }
 
+/// A half-float DSM (GDAL's Float32 with NBITS=16; Float16 in GDAL 3.11)
+/// is ingested to its twin's heights within a half float's step (1/16 m
+/// between 64 and 128 m, GDAL truncating), its no-data -9999 (stored as the
+/// half float -9992) as no-data.
+#[test]
+fn a_half_float_dsm_is_ingested_within_a_half_float_step_of_its_twin() {
+    let [(n, lo, hi, mean), (n_twin, lo_t, hi_t, mean_t)] =
+        ingested_beside_the_plain_twin("f16_tile_deflate_nodata_9999.tif");
+    assert_eq!(n, n_twin, "no-data pixels read as heights");
+    for (a, b) in [(lo, lo_t), (hi, hi_t), (mean, mean_t)] {
+        assert!(a <= b && b - a < 0.0625, "{a} vs {b}");
+    }
+}
+
 /// A DSM whose no-data is GDAL's internal mask band (no no-data value, the
 /// masked pixels hold 0) is ingested with those pixels as no-data: the same
 /// heights as its twin with a no-data value, no zeros.

@@ -3,7 +3,7 @@
 
 GDAL (through rasterio's wheel, which bundles it) writes small 67 x 45 rasters for
 every sample type x layout x compression the reader supports, plus predictor,
-BigTIFF, pixel-is-point, ModelTransformation, no-data, CRS and multi-band
+BigTIFF, pixel-is-point, ModelTransformation, no-data, CRS, multi-band and half-float
 variants, and files the reader must refuse. A few variants GDAL cannot write
 (old-style Deflate code 32946, a north-up ModelTransformation, zero width, tile
 offsets past the end of the file) are made by patching one tag of a GDAL file.
@@ -219,10 +219,15 @@ def describe(ds, name):
     }
 
 
-def expect_good(name, extra=None):
+def expect_good(name, extra=None, adjust=None):
+    """The record of a good fixture: what GDAL reports and its pixels
+    (`adjust`, when given, maps GDAL's pixels to the expected ones, for the
+    one case where the reader deliberately differs from GDAL)."""
     with rasterio.open(os.path.join(OUT, name)) as ds:
         rec = describe(ds, name)
         vals = gdal_pixels(ds)
+    if adjust is not None:
+        vals = adjust(vals)
     raw = vals.tobytes()
     digest = hashlib.sha1(raw).hexdigest()[:10]
     bin_name = f"pixels/{rec['dtype']}_{digest}.bin"
@@ -396,6 +401,26 @@ def main():
         write(name, zeros, None, compress=comp, tiled=layout == "tile",
               mask=np.where(holes, 0, 255).astype("uint8"))
         good.append(expect_good(name, {"internal_mask": True}))
+
+    # Half floats (Float16): GDAL writes them for Float32 with NBITS=16,
+    # truncating each value, and reads them back as Float32 (GDAL 3.10), so
+    # the records say float16. No-data NaN, and -9999, which no half float
+    # holds: GDAL stores -9992 and, its no-data staying -9999, reads those
+    # pixels as heights; the reader takes them as no-data (expected: NaN).
+    half = {"dtype": "float16"}
+    data, nodata = raster("f32")
+    for layout, comp, pred, extra in [("strip", None, None, {}), ("tile", "deflate", 3, {}),
+                                      ("strip", "lzw", 3, {"ENDIANNESS": "BIG"}),
+                                      ("tile", "zstd", None, {})]:
+        name = f"f16_{layout}_{comp or 'none'}_p{pred or 1}{'_bigendian' if extra else ''}.tif"
+        good.append(expect_good(write(name, data, nodata, compress=comp, tiled=layout == "tile",
+                                      predictor=pred, nbits=16, **extra),
+                                dict(half, predictor=pred or 1)))
+    d9, n9 = raster("f32", -9999.0)
+    good.append(expect_good(write("f16_tile_deflate_nodata_9999.tif", d9, n9, compress="deflate",
+                                  tiled=True, predictor=3, nbits=16),
+                            dict(half, predictor=3),
+                            adjust=lambda v: np.where(v == -9992.0, np.float32(np.nan), v)))
 
     # GDAL band metadata (GDAL_METADATA tag): heights stored as centimetres
     # about 100 m (physical = raw * 0.01 + 100), and a band whose unit is feet.

@@ -113,6 +113,7 @@ fn sample_type(path: &Path, format: u16, bits: u16) -> Result<SampleType, GeoTif
         (2, 16) => SampleType::I16,
         (1, 32) => SampleType::U32,
         (2, 32) => SampleType::I32,
+        (3, 16) => SampleType::F16,
         (3, 32) => SampleType::F32,
         (3, 64) => SampleType::F64,
         _ => {
@@ -357,7 +358,7 @@ pub(super) fn parse<R: Read + Seek>(
     }
     let predictor = u16s(path, d, Tag::Predictor, 1)?[0];
     match (predictor, sample_type) {
-        (1 | 2, _) | (3, SampleType::F32 | SampleType::F64) => {}
+        (1 | 2, _) | (3, SampleType::F16 | SampleType::F32 | SampleType::F64) => {}
         _ => {
             return Err(layout_err(format!(
                 "predictor {predictor} with {} samples",

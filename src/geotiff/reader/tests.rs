@@ -29,6 +29,7 @@ fn sample_type_of(dtype: &str) -> SampleType {
         "int16" => SampleType::I16,
         "uint32" => SampleType::U32,
         "int32" => SampleType::I32,
+        "float16" => SampleType::F16,
         "float32" => SampleType::F32,
         "float64" => SampleType::F64,
         other => panic!("dtype {other}"),
