@@ -119,3 +119,112 @@ fn grid_refuses_what_is_not_a_whole_point_cloud() {
         assert!(!out_path.exists());
     }
 }
+
+/// Real DSMs gridded independently, with a known answer: the lidar split at
+/// random into two halves of its points (`--subset`), one half moved by a
+/// known turn, shift and datum offset, each gridded over its own window on
+/// its own lattice (a fraction of a cell apart). `pair` at the defaults
+/// finds the inverse motion within three of its sigmas per axis (the battery
+/// `tools/scripts/real_split.py` runs 392 such pairs: docs/measurements.md,
+/// "Real DSMs gridded independently").
+#[test]
+fn two_halves_of_the_lidar_register_within_their_sigmas() {
+    let dir = tempfile::tempdir().unwrap();
+    // (cell, statistic, the reference's window, the moving one's window,
+    // its shift (m), turn (deg) and height offset (m))
+    type Case<'a> = (&'a str, &'a str, [f64; 4], [f64; 4], [f64; 2], f64, f64);
+    let cases: [Case; 3] = [
+        (
+            "2",
+            "max",
+            [627009.0, 4323549.0, 627184.0, 4323924.0],
+            [627124.7, 4323549.0, 627299.0, 4323923.3],
+            [4.2, -3.1],
+            0.06,
+            1.5,
+        ),
+        (
+            "1",
+            "mean",
+            [627009.0, 4323691.5, 627299.0, 4323924.0],
+            [627009.4, 4323549.0, 627299.0, 4323781.9],
+            [-6.3, 2.4],
+            -0.08,
+            30.0,
+        ),
+        (
+            "2",
+            "mean",
+            [627009.0, 4323549.0, 627169.0, 4323924.0],
+            [627139.3, 4323549.0, 627299.0, 4323922.9],
+            [1.7, 7.5],
+            0.03,
+            0.0,
+        ),
+    ];
+    for (k, (gsd, stat, win0, win1, shift, yaw_deg, dz)) in cases.into_iter().enumerate() {
+        let fmt = |v: &[f64]| v.iter().map(|x| format!("{x}")).collect::<Vec<_>>();
+        let (w0, w1) = (fmt(&win0), fmt(&win1));
+        let (s, yaw, dz_s) = (fmt(&shift), format!("--yaw-deg={yaw_deg}"), format!("{dz}"));
+        let base = ["--gsd", gsd, "--stat", stat];
+        let reference = dir.path().join(format!("ref{k}.tif"));
+        let moving = dir.path().join(format!("mov{k}.tif"));
+        fn window(w: &[String]) -> Vec<&str> {
+            std::iter::once("--window")
+                .chain(w.iter().map(String::as_str))
+                .collect()
+        }
+        dsmgen_grid(
+            &codem("pc.laz"),
+            &[&base[..], &["--subset", "0/2"], &window(&w0)].concat(),
+            &reference,
+        );
+        dsmgen_grid(
+            &codem("pc.laz"),
+            &[
+                &base[..],
+                &[
+                    "--subset", "1/2", "--shift", &s[0], &s[1], &yaw, "--dz", &dz_s,
+                ],
+                &window(&w1),
+            ]
+            .concat(),
+            &moving,
+        );
+        let store = dir.path().join(format!("s{k}.zarr"));
+        ingest(&[reference, moving], &store);
+        let (code, doc) = pair_json(&store, &format!("ref{k}"), &format!("mov{k}"));
+        assert_eq!(code, Some(0), "{doc}");
+        let (got, sigma) = shift_and_sigma(&doc);
+        // the truth at the fit's centre q: the moving points were turned about
+        // their window's centre c and shifted by t; back: R^-1 (q - c - t) + c - q
+        let q: Vec<f64> = (0..2)
+            .map(|i| doc["centre_m"][i].as_f64().unwrap())
+            .collect();
+        let c = [(win1[0] + win1[2]) / 2.0, (win1[1] + win1[3]) / 2.0];
+        let (sin, cos) = (-yaw_deg.to_radians()).sin_cos();
+        let (x, y) = (q[0] - c[0] - shift[0], q[1] - c[1] - shift[1]);
+        let want = [
+            cos * x - sin * y + c[0] - q[0],
+            sin * x + cos * y + c[1] - q[1],
+            -dz,
+        ];
+        let yaw_got = doc["rotation_deg"][2].as_f64().unwrap();
+        let yaw_sigma = doc["sigma"]["rotation_deg"][2]
+            .as_f64()
+            .unwrap_or(f64::INFINITY);
+        let cell: f64 = gsd.parse().unwrap();
+        for i in 0..3 {
+            let err = (got[i] - want[i]).abs();
+            assert!(
+                err <= 3.0 * sigma[i] && err < 0.3 * cell,
+                "case {k} axis {i}: {got:?} +- {sigma:?}, truth {want:?}"
+            );
+        }
+        assert!(
+            (yaw_got + yaw_deg).abs() <= 3.0 * yaw_sigma,
+            "case {k}: yaw {yaw_got} +- {yaw_sigma}, truth {}",
+            -yaw_deg
+        );
+    }
+}
