@@ -26,6 +26,7 @@ mod pair_real;
 mod pair_recovery;
 mod pose_sigma;
 mod readme;
+mod real_split;
 mod resume;
 mod scale3;
 mod shard;
