@@ -24,8 +24,8 @@
 //! sandwich covariance of each is an estimate from its own samples: on sparse
 //! lidar (Tommy Thompson Park's, 0.5 returns per m^2 per DSM) the backward
 //! fit's standard error was up to 5-12 times the forward one's along y for
-//! pairs whose answers were right, and one forward answer 2.1 m off reported
-//! 0.26 m (8 sigma; its backward fit said 1.18 m). The pair's covariance is
+//! pairs whose answers were right, and one forward answer 2.1 m off in y
+//! reported 0.26 m (8 sigma; its backward fit said 1.18 m). The pair's covariance is
 //! therefore at least the backward fit's (moved to the forward centroid), in
 //! every direction the forward fit measures: the least addition that covers
 //! it ([`excess_over`]). A pair is as uncertain as the weaker of its two
@@ -223,7 +223,7 @@ fn moved_backward(
 /// with W = c^-1/2 b c^-1/2 = V diag(l) V', E = c^1/2 V diag(max(l - 1, 0))
 /// V' c^1/2. Zero where `c` already covers `b`. Computed with the rotations
 /// as arcs at `radius_m` (the result does not depend on it but for rounding).
-pub(super) fn excess_over(c: &Matrix6<f64>, b: &Matrix6<f64>, radius_m: f64) -> Matrix6<f64> {
+fn excess_over(c: &Matrix6<f64>, b: &Matrix6<f64>, radius_m: f64) -> Matrix6<f64> {
     let r = radius_m.max(1e-6);
     let s = Matrix6::from_diagonal(&Vector6::new(1.0, 1.0, 1.0, r, r, r));
     let s_inv = Matrix6::from_diagonal(&Vector6::new(1.0, 1.0, 1.0, 1.0 / r, 1.0 / r, 1.0 / r));
