@@ -24,12 +24,17 @@ struct Half {
 }
 
 impl Half {
-    /// Where the motion takes point `p` (x, y): turn about the centre, shift.
-    fn moved(&self, p: [f64; 2]) -> [f64; 2] {
-        let c = [
+    /// The window's centre, which the turn is about.
+    fn centre(&self) -> [f64; 2] {
+        [
             (self.window[0] + self.window[2]) / 2.0,
             (self.window[1] + self.window[3]) / 2.0,
-        ];
+        ]
+    }
+
+    /// Where the motion takes point `p` (x, y): turn about the centre, shift.
+    fn moved(&self, p: [f64; 2]) -> [f64; 2] {
+        let c = self.centre();
         let (sin, cos) = self.yaw_deg.to_radians().sin_cos();
         let (x, y) = (p[0] - c[0], p[1] - c[1]);
         [
@@ -40,10 +45,7 @@ impl Half {
 
     /// The inverse of [`moved`](Self::moved).
     fn unmoved(&self, q: [f64; 2]) -> [f64; 2] {
-        let c = [
-            (self.window[0] + self.window[2]) / 2.0,
-            (self.window[1] + self.window[3]) / 2.0,
-        ];
+        let c = self.centre();
         let (sin, cos) = (-self.yaw_deg.to_radians()).sin_cos();
         let (x, y) = (q[0] - self.shift[0] - c[0], q[1] - self.shift[1] - c[1]);
         [c[0] + cos * x - sin * y, c[1] + sin * x + cos * y]
