@@ -16,8 +16,10 @@
 //! Memory is the cache budget plus a small constant: nothing loads a whole DSM.
 //!
 //! The modules:
-//! - [`geotiff`]: GeoTIFF in pure Rust, a streaming reader (strips or tiles)
-//!   and a tiled Cloud-Optimized writer; [`geo`] the geometry every stage
+//! - [`geotiff`]: GeoTIFF in pure Rust, a streaming reader (strips or tiles;
+//!   georeferencing in side files too: `.aux.xml`, world files, `.prj` as WKT)
+//!   and a tiled Cloud-Optimized writer; [`xml`] the XML of GDAL's side
+//!   files (VRT, `.aux.xml`); [`geo`] the geometry every stage
 //!   shares (geotransform in GDAL order, CRS from geokeys, boxes, rigid transforms).
 //! - [`store`]: the collection store, one Zarr v3 multiscale group per DSM with
 //!   its catalog entry; `ingest` converts GeoTIFFs into it once.
@@ -75,5 +77,6 @@ pub mod select;
 pub mod store;
 pub mod synth;
 pub mod view;
+pub mod xml;
 
 pub use error::InputError;

@@ -6,4 +6,6 @@ pub mod equivalent;
 pub mod gdal_metadata;
 pub mod geokeys;
 pub mod reader;
+pub mod sidecar;
+pub mod wkt;
 pub mod writer;

@@ -13,7 +13,9 @@
 //! giant strip is one block: it decodes in one call, and a partial read keeps
 //! the whole image. Multi-band files give band 1. As GDAL reads them, GDAL's
 //! internal mask band makes its masked pixels NaN, and band 1's scale and
-//! offset (GDAL metadata) make the values `raw * scale + offset`.
+//! offset (GDAL metadata) make the values `raw * scale + offset`. Georeferencing
+//! beside the file (`.aux.xml`, a world file, `.prj`) is read as GDAL reads
+//! it (`super::sidecar`).
 //! Submodules: `layout` (tags to block grid and metadata), `decode` (blocks
 //! to `f32`), `convert` (samples to `f32`), `direct` (Deflate f32 blocks,
 //! predictor none or 3, decoded without the `tiff` crate: the fast ingest
@@ -66,8 +68,11 @@ pub enum GeoTiffError {
         width: u64,
         height: u64,
     },
-    #[error("{}: no georeferencing (needs ModelPixelScale + ModelTiepoint or ModelTransformation)", .path.display())]
+    #[error("{}: no georeferencing (needs ModelPixelScale + ModelTiepoint or ModelTransformation, a world file such as .tfw, or a GeoTransform in its .aux.xml)", .path.display())]
     NoGeoreferencing { path: PathBuf },
+    /// A side file (`.aux.xml`, world file, `.prj`) that cannot be read; `path` is the side file.
+    #[error("{}: {detail}", .path.display())]
+    Sidecar { path: PathBuf, detail: String },
     #[error("{}: geotransform {geotransform:?} is rotated, sheared or not north-up; only north-up rasters are supported", .path.display())]
     NotNorthUp {
         path: PathBuf,
@@ -182,6 +187,9 @@ pub struct GeoTiffInfo {
     /// The file has GDAL's internal mask band (a transparency-mask IFD):
     /// pixels it masks are read as NaN.
     pub internal_mask: bool,
+    /// The side files whose georeferencing was taken (`.aux.xml`, a world
+    /// file, `.prj`); empty when the file's own tags say it all.
+    pub georeferenced_by: Vec<PathBuf>,
 }
 
 /// One open GeoTIFF. `Send`, not meant to be shared: each worker opens its own.

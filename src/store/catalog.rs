@@ -37,7 +37,9 @@ pub struct LevelMeta {
     pub chunk: u64,
 }
 
-/// The input file a DSM was ingested from; size and mtime decide re-ingest.
+/// The input file a DSM was ingested from; size and mtime decide re-ingest,
+/// its side files' too (a world file, `.aux.xml` or `.prj` added, changed or
+/// removed changes the DSM's georeferencing).
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct SourceInfo {
     /// Absolute path at ingest time.
@@ -45,6 +47,10 @@ pub struct SourceInfo {
     pub size: u64,
     /// Modification time, nanoseconds since the Unix epoch.
     pub mtime_unix_ns: i64,
+    /// The side files beside it that can georeference it, each as a
+    /// `SourceInfo` of its own (no side files of their own).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub side_files: Vec<SourceInfo>,
 }
 
 /// Chunk compression of every array.
@@ -323,6 +329,7 @@ pub(crate) mod tests {
                 path: "/data/a.tif".into(),
                 size: 42,
                 mtime_unix_ns: 1_700_000_000_123_456_789,
+                side_files: Vec::new(),
             },
             source_dtype: "Float32".into(),
             storage: StorageSettings::default(),

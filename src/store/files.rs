@@ -102,8 +102,16 @@ fn check_id(id: &str, file: &Path) -> Result<(), String> {
     Ok(())
 }
 
-/// Path, size and mtime of a source file.
+/// Path, size and mtime of a source file and of its side files.
 pub fn source_info(path: &Path) -> Result<SourceInfo, StoreError> {
+    let mut info = file_info(path)?;
+    for side in crate::geotiff::sidecar::paths(path) {
+        info.side_files.push(file_info(&side)?);
+    }
+    Ok(info)
+}
+
+fn file_info(path: &Path) -> Result<SourceInfo, StoreError> {
     let meta = std::fs::metadata(path).map_err(|e| StoreError::io(path, e))?;
     let mtime_unix_ns = meta
         .modified()
@@ -115,6 +123,7 @@ pub fn source_info(path: &Path) -> Result<SourceInfo, StoreError> {
         path: path.display().to_string(),
         size: meta.len(),
         mtime_unix_ns,
+        side_files: Vec::new(),
     })
 }
 

@@ -21,7 +21,7 @@ use super::source::{open_geotiff, GeoTiffSource, RowSource, SourceError, SourceR
 use crate::geo::{Crs, GeoTransform};
 
 mod spec;
-mod xml;
+use crate::xml;
 use spec::{DatasetSpec, SourceSpec};
 
 /// Relative tolerance on pixel sizes (VRT text vs the sources' tags).

@@ -325,6 +325,80 @@ fn a_half_float_dsm_is_ingested_within_a_half_float_step_of_its_twin() {
     }
 }
 
+/// A DSM georeferenced only beside the file (a `.wld` world file and an ESRI
+/// `.prj`, as ArcGIS delivers it) is one collection with its twin whose
+/// GeoTIFF tags say the same: same CRS, place and heights. The store records
+/// the side files: a world file moved 10 m east re-ingests the DSM 10 m east,
+/// and without its `.prj` the DSM has no CRS and is refused, the store kept.
+#[test]
+fn a_dsm_georeferenced_by_side_files_is_its_twin_and_follows_them() {
+    let [side, twin] = ingested_beside_the_plain_twin("wf_wld_prj.tif");
+    assert_eq!(side, twin);
+    let tmp = tempfile::tempdir().unwrap();
+    let geotiff = fixtures().join("geotiff");
+    for ext in ["tif", "wld", "prj"] {
+        std::fs::copy(
+            geotiff.join(format!("wf_wld_prj.{ext}")),
+            tmp.path().join(format!("a.{ext}")),
+        )
+        .unwrap();
+    }
+    let (tif, store) = (tmp.path().join("a.tif"), tmp.path().join("c.zarr"));
+    let dsm = || {
+        let out = dsmstream(&["info", store.to_str().unwrap(), "--json"]);
+        let catalog: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        catalog["dsms"][0].clone()
+    };
+    assert_ok(&ingest(&[&tif], &store, &[]));
+    assert_eq!(dsm()["geotransform"][0], 630000.5);
+    assert_eq!(dsm()["crs"]["epsg"], 32617);
+    assert_eq!(dsm()["source"]["side_files"].as_array().unwrap().len(), 2);
+    let east = "0.5\n0.0\n0.0\n-0.5\n630010.75\n4830000.0\n";
+    std::fs::write(tmp.path().join("a.wld"), east).unwrap();
+    let out = ingest(&[&tif], &store, &[]);
+    assert_ok(&out);
+    assert!(
+        text(&out.stdout).contains("1 replaced"),
+        "{}",
+        text(&out.stdout)
+    );
+    assert_eq!(dsm()["geotransform"][0], 630010.5);
+    std::fs::remove_file(tmp.path().join("a.prj")).unwrap();
+    assert_refusal(&ingest(&[&tif], &store, &[]), "a.tif", "no CRS");
+    assert_eq!(dsm()["geotransform"][0], 630010.5, "the store is kept");
+}
+
+/// Side files that cannot be read are refused by name, nothing written: a
+/// `.prj` whose CRS names no EPSG code and is no UTM zone, a world file of
+/// five numbers, an `.aux.xml` that is not XML, a rotated world file.
+#[test]
+fn side_files_that_cannot_be_read_are_refused_by_name() {
+    let tmp = tempfile::tempdir().unwrap();
+    let geotiff = fixtures().join("geotiff");
+    for (file, side, why) in [
+        (
+            "bad_wf_prj_lambert.tif",
+            "bad_wf_prj_lambert.prj",
+            "names no EPSG code",
+        ),
+        (
+            "bad_wf_short.tif",
+            "bad_wf_short.tfw",
+            "bad world file: holds 5 numbers, not 6",
+        ),
+        (
+            "bad_wf_aux_xml.tif",
+            "bad_wf_aux_xml.tif.aux.xml",
+            "not valid XML",
+        ),
+        ("bad_wf_rotated.tif", "bad_wf_rotated.tfw", "not north-up"),
+    ] {
+        let store = tmp.path().join(format!("{file}.zarr"));
+        let out = ingest(&[&geotiff.join(file)], &store, &[]);
+        assert_refused(&out, &store, side, why);
+    }
+}
+
 /// A DSM whose no-data is GDAL's internal mask band (no no-data value, the
 /// masked pixels hold 0) is ingested with those pixels as no-data: the same
 /// heights as its twin with a no-data value, no zeros.

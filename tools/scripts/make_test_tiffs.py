@@ -4,7 +4,8 @@
 GDAL (through rasterio's wheel, which bundles it) writes small 67 x 45 rasters for
 every sample type x layout x compression the reader supports, plus predictor,
 BigTIFF, pixel-is-point, ModelTransformation, no-data, CRS, multi-band and half-float
-variants, and files the reader must refuse. A few variants GDAL cannot write
+variants, georeferencing in side files (.aux.xml, world files, .prj), and files the
+reader must refuse. A few variants GDAL cannot write
 (old-style Deflate code 32946, a north-up ModelTransformation, zero width, tile
 offsets past the end of the file) are made by patching one tag of a GDAL file.
 
@@ -436,6 +437,43 @@ def main():
         ds.units = ("ft",)
     good.append(expect_good(name, {"height_unit": "ft"}))
 
+    # Georeferencing beside the file, as GDAL reads it (GEOREF_SOURCES
+    # PAM,INTERNAL,TABFILE,WORLDFILE): PROFILE=BASELINE writes no GeoTIFF tags,
+    # puts the CRS in a PAM .aux.xml and, with TFW=YES, the transform in a
+    # world file. "side_files": the ones the reader
+    # took georeferencing from (transform first).
+    d64, n64 = raster("f64")  # no-data -9999: only the .aux.xml says so
+    name = write("wf_tfw_aux.tif", d64, n64, compress="deflate", PROFILE="BASELINE", TFW="YES")
+    good.append(expect_good(name, {"side_files": ["wf_tfw_aux.tfw", "wf_tfw_aux.tif.aux.xml"]}))
+    name = write("wf_aux_only.tif", d64, n64, compress="lzw", tiled=True, PROFILE="BASELINE")
+    good.append(expect_good(name, {"side_files": ["wf_aux_only.tif.aux.xml"]}))
+    # Band 1's no-data, scale, offset and unit only in the .aux.xml (the file has
+    # no GDAL_NODATA or GDAL_METADATA tag): GDAL takes them from there.
+    name = write("wf_pam_band.tif", cm, None, compress="deflate")
+    with open(os.path.join(OUT, name + ".aux.xml"), "w") as f:
+        f.write('<PAMDataset>\n  <PAMRasterBand band="1">\n'
+                '    <NoDataValue>-3.27680000000000E+04</NoDataValue>\n'
+                '    <Offset>100</Offset>\n    <Scale>0.01</Scale>\n'
+                '    <UnitType>m</UnitType>\n  </PAMRasterBand>\n</PAMDataset>\n')
+    good.append(expect_good(name, {"scale": 0.01, "offset": 100.0, "height_unit": "m"}))
+    # A .wld world file and the CRS in an ESRI .prj only: GDAL's GeoTIFF driver
+    # ignores a .prj (no CRS); the reader takes it, as ArcGIS does.
+    name = write("wf_wld_prj.tif", data, nodata, compress="deflate", PROFILE="BASELINE", TFW="YES")
+    stem = os.path.join(OUT, "wf_wld_prj")
+    os.replace(stem + ".tfw", stem + ".wld")
+    os.remove(stem + ".tif.aux.xml")
+    with open(stem + ".prj", "w") as f:
+        f.write(rasterio.crs.CRS.from_string(UTM).to_wkt(version="WKT1_ESRI"))
+    good.append(expect_good(name, {"epsg": 32617, "side_files": ["wf_wld_prj.wld",
+                                                                 "wf_wld_prj.prj"]}))
+    # The .aux.xml's transform before the file's own tags (10 m east).
+    name = write("wf_pam_over_tags.tif", data, nodata, compress="deflate")
+    with open(os.path.join(OUT, name + ".aux.xml"), "w") as f:
+        f.write("<PAMDataset>\n  <GeoTransform>  6.3001050000000000e+05,  5.0000000000000000e-01,"
+                "  0.0000000000000000e+00,  4.8300002500000000e+06,  0.0000000000000000e+00,"
+                " -5.0000000000000000e-01</GeoTransform>\n</PAMDataset>\n")
+    good.append(expect_good(name, {"side_files": ["wf_pam_over_tags.tif.aux.xml"]}))
+
     # ModelTransformation only: GDAL writes one for a rotated transform; patch it north-up.
     rot = Affine(0.5, 0.1, 630000.0, 0.1, -0.5, 4830000.0)
     write("bad_rotated.tif", data, nodata, transform=rot, compress="deflate")
@@ -476,6 +514,30 @@ def main():
     src = open(os.path.join(OUT, "f32_tile_none.tif"), "rb").read()
     open(os.path.join(OUT, "bad_truncated.tif"), "wb").write(src[: len(src) // 2])
     bad.append({"file": "bad_truncated.tif", "error": "truncated"})
+
+    # Side files the reader must refuse, each named in the error: a rotated
+    # world file, a world file of five lines, a .prj CRS with no EPSG code
+    # that is no UTM zone, an .aux.xml that is not XML.
+    wf = open(os.path.join(OUT, "wf_wld_prj.tif"), "rb").read()
+    esri = rasterio.crs.CRS.from_string(UTM).to_wkt(version="WKT1_ESRI")
+    for name, tfw, prj, aux, kind in [
+        ("bad_wf_rotated", "0.5\n0.1\n0.1\n-0.5\n630000.75\n4830000.0\n", esri, None, "rotated"),
+        ("bad_wf_short", "0.5\n0.0\n0.0\n-0.5\n630000.75\n", esri, None, "side_file"),
+        ("bad_wf_prj_lambert", "0.5\n0.0\n0.0\n-0.5\n630000.75\n4830000.0\n",
+         esri.replace("Transverse_Mercator", "Lambert_Conformal_Conic"), None, "side_file"),
+        ("bad_wf_aux_xml", None, None, "<PAMDataset><SRS>PROJCS[", "side_file"),
+    ]:
+        stem = os.path.join(OUT, name)
+        open(stem + ".tif", "wb").write(wf)
+        names = {"rotated": ".tfw", "side_file": ".prj" if "lambert" in name else ".tfw"}[kind]
+        if tfw is not None:
+            open(stem + ".tfw", "w").write(tfw)
+        if prj is not None:
+            open(stem + ".prj", "w").write(prj)
+        if aux is not None:
+            open(stem + ".tif.aux.xml", "w").write(aux)
+            names = ".tif.aux.xml"
+        bad.append({"file": name + ".tif", "error": kind, "names": name + names})
 
     real = [expect_real(p) for p in sorted(glob.glob(os.path.join(ROOT, "fixtures/real/*/*.tif")))]
 

@@ -4,7 +4,7 @@
 //! file the decoder cannot read correctly, naming the reason.
 
 use std::io::{Read, Seek};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use tiff::decoder::{ifd::Value, ChunkType, Decoder};
 use tiff::tags::Tag;
@@ -15,6 +15,7 @@ use super::lerc;
 use super::{GeoTiffError, GeoTiffInfo, SampleType};
 use crate::geotiff::gdal_metadata::BandMetadata;
 use crate::geotiff::geokeys::{self, tag, GeoKeys};
+use crate::geotiff::sidecar;
 
 /// Block grid of band 1. Strips are blocks `width` wide.
 #[derive(Clone, Debug)]
@@ -376,11 +377,22 @@ pub(super) fn parse<R: Read + Seek>(
     } = read_block_grid(path, d, width, height, file_len)?;
     let blocks_across = width.div_ceil(block_width);
 
-    let georef = read_georeferencing(path, d)?;
-    let nodata = ascii_tag(path, d, tag::GDAL_NODATA)?.and_then(|s| geokeys::parse_gdal_nodata(&s));
-    let band = ascii_tag(path, d, tag::GDAL_METADATA)?
+    let pam = sidecar::pam(path)?;
+    let georef = read_georeferencing(path, d, pam.as_ref())?;
+    let mut nodata =
+        ascii_tag(path, d, tag::GDAL_NODATA)?.and_then(|s| geokeys::parse_gdal_nodata(&s));
+    let mut band = ascii_tag(path, d, tag::GDAL_METADATA)?
         .map(|xml| BandMetadata::parse(xml.trim_end_matches('\0')))
         .unwrap_or_default();
+    if let Some(pam) = &pam {
+        // as GDAL: the side file's band values where the file has none
+        nodata = nodata.or(pam.band.nodata);
+        if !band.rescales() {
+            band.scale = pam.band.scale.unwrap_or(band.scale);
+            band.offset = pam.band.offset.unwrap_or(band.offset);
+        }
+        band.unit = band.unit.or_else(|| pam.band.unit.clone());
+    }
     let samples_in_block = if planar == 2 {
         1
     } else {
@@ -429,6 +441,7 @@ pub(super) fn parse<R: Read + Seek>(
         pixel_is_point: georef.pixel_is_point,
         band,
         internal_mask: false,
+        georeferenced_by: georef.georeferenced_by,
     };
     Ok(ParsedTiff { info, layout })
 }
@@ -437,11 +450,13 @@ struct Georeferencing {
     geotransform: crate::geo::GeoTransform,
     crs: crate::geo::Crs,
     pixel_is_point: bool,
+    georeferenced_by: Vec<PathBuf>,
 }
 
 fn read_georeferencing<R: Read + Seek>(
     path: &Path,
     d: &mut Decoder<R>,
+    pam: Option<&sidecar::Pam>,
 ) -> Result<Georeferencing, GeoTiffError> {
     let gk = |e| GeoTiffError::from_geokeys(path, e);
     let scale = f64_tag(path, d, tag::MODEL_PIXEL_SCALE)?;
@@ -461,18 +476,92 @@ fn read_georeferencing<R: Read + Seek>(
     } else {
         GeoKeys::parse(&directory, &doubles, ascii.as_deref().unwrap_or("")).map_err(gk)?
     };
-    let pixel_is_point = keys.pixel_is_point();
-    let geotransform = geokeys::geotransform_from_tags(
+    let in_tags = Georeferencing {
+        geotransform: crate::geo::GeoTransform([0.0; 6]),
+        crs: geokeys::crs_from_tags(&directory, &doubles, ascii.as_deref()).map_err(gk)?,
+        pixel_is_point: keys.pixel_is_point(),
+        georeferenced_by: Vec::new(),
+    };
+    let transform = geokeys::geotransform_from_tags(
         scale.as_deref(),
         tiepoint.as_deref(),
         transformation.as_deref(),
-        pixel_is_point,
-    )
-    .map_err(gk)?;
-    let crs = geokeys::crs_from_tags(&directory, &doubles, ascii.as_deref()).map_err(gk)?;
+        in_tags.pixel_is_point,
+    );
+    with_side_files(path, pam, in_tags, transform, !directory.is_empty())
+}
+
+/// The georeferencing of the file's tags, completed or overridden by its side
+/// files in GDAL's order: the transform from the PAM sidecar, the tags, a
+/// world file; the CRS from the PAM sidecar, the tags (when they have keys),
+/// then an ESRI `.prj` (beyond GDAL).
+fn with_side_files(
+    path: &Path,
+    pam: Option<&sidecar::Pam>,
+    in_tags: Georeferencing,
+    transform: Result<crate::geo::GeoTransform, geokeys::GeoKeyError>,
+    tags_name_a_crs: bool,
+) -> Result<Georeferencing, GeoTiffError> {
+    let north_up = |by: &Path, g: [f64; 6]| {
+        let gt = crate::geo::GeoTransform(g);
+        match gt.is_north_up() {
+            true => Ok(gt),
+            false => Err(GeoTiffError::NotNorthUp {
+                path: by.to_path_buf(),
+                geotransform: g,
+            }),
+        }
+    };
+    let mut by = Vec::new();
+    let mut pixel_is_point = in_tags.pixel_is_point;
+    let pam_transform = pam.and_then(|p| Some((&p.path, p.geotransform?)));
+    let geotransform = match (pam_transform, transform) {
+        (Some((aux, g)), _) => {
+            by.push(aux.clone());
+            pixel_is_point = false;
+            north_up(aux, g)?
+        }
+        (None, Ok(gt)) => gt,
+        (None, Err(geokeys::GeoKeyError::NoGeoreferencing)) => match sidecar::world_file(path)? {
+            Some(w) => {
+                by.push(w.path.clone());
+                pixel_is_point = false;
+                north_up(&w.path, w.geotransform)?
+            }
+            None => return Err(GeoTiffError::NoGeoreferencing { path: path.into() }),
+        },
+        (None, Err(e)) => return Err(GeoTiffError::from_geokeys(path, e)),
+    };
+    let wkt_crs = |by: &Path, text: &str| {
+        crate::geotiff::wkt::crs_from_wkt(text).map_err(|detail| GeoTiffError::Sidecar {
+            path: by.to_path_buf(),
+            detail,
+        })
+    };
+    let crs = match pam.and_then(|p| Some((&p.path, p.srs.as_deref()?))) {
+        Some((aux, srs)) => {
+            if !by.contains(aux) {
+                by.push(aux.clone());
+            }
+            wkt_crs(aux, srs)?
+        }
+        None if tags_name_a_crs => in_tags.crs,
+        None => match sidecar::prj(path)? {
+            Some((prj, text)) => {
+                let crs = wkt_crs(&prj, &text)?;
+                by.push(prj);
+                crs
+            }
+            None => in_tags.crs,
+        },
+    };
+    if !by.is_empty() {
+        tracing::debug!(path = %path.display(), side_files = ?by, "georeferencing read beside the file");
+    }
     Ok(Georeferencing {
         geotransform,
         crs,
         pixel_is_point,
+        georeferenced_by: by,
     })
 }

@@ -113,6 +113,14 @@ fn check_info(info: &GeoTiffInfo, rec: &Value) {
     assert_eq!(info.internal_mask, masked.unwrap_or(false), "{file} mask");
     let unit = rec.get("height_unit").and_then(Value::as_str);
     assert_eq!(info.band.unit.as_deref(), unit, "{file} unit");
+    let side_files: Vec<String> = (info.georeferenced_by.iter())
+        .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
+        .collect();
+    let want: Vec<String> = match rec.get("side_files") {
+        Some(v) => serde_json::from_value(v.clone()).unwrap(),
+        None => Vec::new(),
+    };
+    assert_eq!(side_files, want, "{file} side files");
 }
 
 fn read_all(path: &Path) -> (GeoTiffInfo, Vec<f32>) {
@@ -199,12 +207,15 @@ fn every_bad_fixture_is_refused_with_its_reason() {
             "sample_format" => matches!(err, GeoTiffError::UnsupportedSampleFormat { .. }),
             "zero_size" => matches!(err, GeoTiffError::ZeroSize { .. }),
             "truncated" => matches!(err, GeoTiffError::Truncated { .. }),
+            "side_file" => matches!(err, GeoTiffError::Sidecar { .. }),
             other => panic!("unknown error kind {other}"),
         };
         let msg = err.to_string();
         assert!(ok, "{file}: expected {kind}, got {msg}");
         assert!(err.is_bad_input(), "{msg}");
-        assert!(msg.contains(file) && !msg.contains('\n'), "{msg}");
+        // the file at fault: the GeoTIFF, or the side file that holds the problem
+        let names = rec.get("names").and_then(Value::as_str).unwrap_or(file);
+        assert!(msg.contains(names) && !msg.contains('\n'), "{msg}");
     }
     let lerc = GeoTiffReader::open(&fixtures().join("bad_lerc_wrapping.tif"))
         .err()

@@ -5,10 +5,10 @@
 
 use std::path::{Path, PathBuf};
 
-use super::xml::Element;
 use super::{refuse, PixelRect};
 use crate::geo::GeoTransform;
 use crate::store::source::SourceError;
+use crate::xml::Element;
 
 /// What the XML says, before any source is opened.
 pub(super) struct DatasetSpec {

@@ -1,6 +1,7 @@
-//! The VRT's XML as a small tree (element name, attributes, text, children),
-//! built with quick-xml. VRT files are a few kilobytes to a few megabytes, so
-//! holding the tree is cheap and the checks read as plain lookups.
+//! The XML of GDAL's side files (a VRT, a PAM `.aux.xml`) as a small tree
+//! (element name, attributes, text, children), built with quick-xml. Such
+//! files are a few kilobytes to a few megabytes, so holding the tree is cheap
+//! and the checks read as plain lookups.
 
 use quick_xml::events::{BytesStart, Event};
 use quick_xml::reader::Reader;
