@@ -331,6 +331,17 @@ impl CogWriter {
             action: "renaming temporary file into place",
             source,
         })?;
+        // as GDAL's Create: the PAM sidecar of the file replaced would
+        // override the new file's georeferencing and no-data when read
+        let pam = PathBuf::from(format!("{}.aux.xml", self.path.display()));
+        if pam.is_file() {
+            std::fs::remove_file(&pam).map_err(|source| GeoTiffWriteError::Io {
+                path: pam.clone(),
+                action: "removing the replaced file's side file",
+                source,
+            })?;
+            tracing::warn!(path = %pam.display(), "stale side file removed");
+        }
         tracing::info!(
             path = %self.path.display(),
             width = self.width,

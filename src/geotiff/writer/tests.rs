@@ -292,10 +292,23 @@ fn existing_file_is_replaced_only_on_success() {
     let writer = CogWriter::create(&path, 20, 20, options(16, f32::NAN)).unwrap();
     assert!(writer.finish().is_err());
     assert_eq!(std::fs::read(&path).unwrap(), b"old");
+    // the replaced file's PAM sidecar would override the new georeferencing
+    let pam = dir.path().join("r.tif.aux.xml");
+    std::fs::write(
+        &pam,
+        "<PAMDataset><GeoTransform>0,1,0,0,0,-1</GeoTransform></PAMDataset>",
+    )
+    .unwrap();
     write_geotiff_f32(&path, 20, 20, options(16, f32::NAN), &[2.5; 400]).unwrap();
     let images = read_all_images(&path);
     assert_eq!(images[0].2, vec![2.5; 400]);
     assert_eq!((images[1].0, images[1].1), (10, 10));
+    assert!(!pam.exists());
+    let info = crate::geotiff::reader::GeoTiffReader::open(&path)
+        .unwrap()
+        .info()
+        .clone();
+    assert_eq!(info.geotransform, options(16, f32::NAN).geotransform);
 }
 
 #[test]
