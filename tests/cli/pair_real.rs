@@ -151,3 +151,46 @@ fn xdem_crops_that_agree_give_the_identity() {
         }
     }
 }
+
+/// The `xoff20` crop delivered as a TIFF without GeoTIFF tags
+/// (fixtures/geotiff/wf_real_xdem: a world file, an ESRI `.prj` naming
+/// ETRS89 / UTM 33N by its parameters only, an `.aux.xml` holding its
+/// no-data) is one collection with the GeoTIFFs of that CRS, and `pair`
+/// gives it exactly the answer its GeoTIFF twin gets: the identity.
+#[test]
+fn a_real_dsm_georeferenced_by_side_files_pairs_as_its_geotiff_twin() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = dir.path().join("x.zarr");
+    let data = fixtures().join("real/xdem_gdal");
+    let reference = "shifted_reprojected_xoff200.0_yoff200.0";
+    let twin = "shifted_reprojected_xoff20.0_yoff20.0";
+    ingest(
+        &[
+            data.join(format!("{reference}.tif")),
+            data.join(format!("{twin}.tif")),
+            fixtures().join("geotiff/wf_real_xdem.tif"),
+        ],
+        &store,
+    );
+    let pair = |moving: &str| {
+        let out = bin()
+            .arg("pair")
+            .arg(&store)
+            .args([reference, moving, "--json"])
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        let json: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        json["result"]["matrix_world"].clone()
+    };
+    let m = pair("wf_real_xdem");
+    assert_eq!(m, pair(twin));
+    // the identity within a millimetre at the corners of the common footprint
+    for (x, y) in [(505_570.0, 8_672_550.0), (506_526.0, 8_673_586.0)] {
+        let p = [x, y, 550.0, 1.0];
+        for (r, want) in p.iter().take(3).enumerate() {
+            let moved: f64 = (0..4).map(|c| m[r][c].as_f64().unwrap() * p[c]).sum();
+            assert!((moved - want).abs() < 1e-3, "{m} moves ({x}, {y})");
+        }
+    }
+}

@@ -30,6 +30,7 @@ import warnings
 
 import numpy as np
 import rasterio
+import rasterio.shutil
 from rasterio.transform import Affine, from_origin
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
@@ -265,6 +266,8 @@ with the kind of error), `real` (the rasters in ../real/: metadata, valid-pixel 
 and sum, and 100 sampled pixels). Data: a synthetic 67 x 45 height field with
 no-data holes, stored in every sample type, layout and compression the reader
 supports; `bad_*` and a few variants are patched GDAL files (see the script).
+`wf_real_xdem.*` is xdem-data's Svalbard crop of ../real/xdem_gdal (its LICENSE
+applies) rewritten with its georeferencing in a world file and an ESRI `.prj`.
 The Rust tests are in src/geotiff/reader/tests.rs.
 """
 
@@ -473,6 +476,24 @@ def main():
                 "  0.0000000000000000e+00,  4.8300002500000000e+06,  0.0000000000000000e+00,"
                 " -5.0000000000000000e-01</GeoTransform>\n</PAMDataset>\n")
     good.append(expect_good(name, {"side_files": ["wf_pam_over_tags.tif.aux.xml"]}))
+
+    # A real DSM delivered as a TIFF with a world file and an ESRI .prj: xDEM's
+    # Svalbard crop (fixtures/real/xdem_gdal, see its LICENSE) rewritten by GDAL
+    # with no GeoTIFF tags; its .aux.xml keeps only band 1's no-data, the CRS
+    # goes to a .prj as ESRI WKT (no EPSG code: ETRS89 / UTM zone 33N by its
+    # parameters).
+    src = os.path.join(ROOT, "fixtures/real/xdem_gdal/shifted_reprojected_xoff20.0_yoff20.0.tif")
+    name = "wf_real_xdem.tif"
+    rasterio.shutil.copy(src, os.path.join(OUT, name), driver="GTiff", PROFILE="BASELINE",
+                         TFW="YES", COMPRESS="DEFLATE")
+    stem = os.path.join(OUT, "wf_real_xdem")
+    aux = open(stem + ".tif.aux.xml").read()
+    band = aux[aux.index("  <PAMRasterBand"):]
+    open(stem + ".tif.aux.xml", "w").write("<PAMDataset>\n" + band)
+    with rasterio.open(src) as ds, open(stem + ".prj", "w") as f:
+        f.write(ds.crs.to_wkt(version="WKT1_ESRI"))
+    good.append(expect_good(name, {"epsg": 25833, "side_files": ["wf_real_xdem.tfw",
+                                                                 "wf_real_xdem.prj"]}))
 
     # ModelTransformation only: GDAL writes one for a rotated transform; patch it north-up.
     rot = Affine(0.5, 0.1, 630000.0, 0.1, -0.5, 4830000.0)
