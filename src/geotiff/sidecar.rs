@@ -48,11 +48,23 @@ fn bad(path: &Path, detail: String) -> GeoTiffError {
     }
 }
 
+/// Side files are text of kilobytes (an `.aux.xml` with histograms of many
+/// bands: a few megabytes); anything larger is not one.
+const MAX_SIDE_FILE_BYTES: u64 = 64 << 20;
+
 fn read_text(path: &Path) -> Result<String, GeoTiffError> {
-    let bytes = std::fs::read(path).map_err(|source| GeoTiffError::Io {
+    let io = |source| GeoTiffError::Io {
         path: path.to_path_buf(),
         source,
-    })?;
+    };
+    let len = std::fs::metadata(path).map_err(io)?.len();
+    if len > MAX_SIDE_FILE_BYTES {
+        return Err(bad(
+            path,
+            format!("{len} bytes, too large for a side file (at most {MAX_SIDE_FILE_BYTES})"),
+        ));
+    }
+    let bytes = std::fs::read(path).map_err(io)?;
     String::from_utf8(bytes).map_err(|_| bad(path, "not a text file (invalid UTF-8)".into()))
 }
 

@@ -88,6 +88,7 @@ fn parse(text: &str) -> Result<Node, String> {
     let mut p = Parser {
         chars: text.trim().chars().collect(),
         at: 0,
+        depth: 0,
     };
     let node = p.node()?;
     p.skip_space();
@@ -100,7 +101,13 @@ fn parse(text: &str) -> Result<Node, String> {
 struct Parser {
     chars: Vec<char>,
     at: usize,
+    depth: usize,
 }
+
+/// Deeper nesting than any CRS has (a compound of bound projected CRSs is
+/// about 8): a file nested deeper is not WKT, and the parser's recursion
+/// stays far from the stack's end.
+const MAX_DEPTH: usize = 64;
 
 impl Parser {
     fn skip_space(&mut self) {
@@ -121,6 +128,16 @@ impl Parser {
     }
 
     fn node(&mut self) -> Result<Node, String> {
+        self.depth += 1;
+        if self.depth > MAX_DEPTH {
+            return Err(format!("nested deeper than {MAX_DEPTH} levels"));
+        }
+        let node = self.node_body();
+        self.depth -= 1;
+        node
+    }
+
+    fn node_body(&mut self) -> Result<Node, String> {
         let keyword = self.word();
         if keyword.is_empty() || !keyword.starts_with(|c: char| c.is_alphabetic()) {
             return Err(format!("expected a WKT keyword at character {}", self.at));
@@ -472,6 +489,26 @@ fn encode(mut entries: Vec<(u16, GeoKeyValue)>) -> (Vec<u16>, Vec<f64>, String) 
 mod tests {
     use super::*;
     use crate::geotiff::geokeys::non_metre_units as crs_non_metre_units;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// Any text, and any cut or splice of a real WKT, gives a CRS or an
+        /// error: never a panic.
+        #[test]
+        fn any_text_is_a_crs_or_an_error(
+            cut in 0usize..800,
+            splice in "[\\[\\]\",A-Z0-9._ -]{0,12}",
+            text in "\\PC{0,64}",
+        ) {
+            let at = GDAL_UTM17.char_indices().map(|(i, _)| i).nth(cut).unwrap_or(GDAL_UTM17.len());
+            let spliced = format!("{}{splice}{}", &GDAL_UTM17[..at], &GDAL_UTM17[at..]);
+            for t in [&GDAL_UTM17[..at], spliced.as_str(), text.as_str()] {
+                let _ = crs_from_wkt(t);
+                let _ = epsg(t);
+                let _ = non_metre_units(t);
+            }
+        }
+    }
 
     /// What GDAL 3.10 writes into a PAM sidecar for EPSG:32617.
     const GDAL_UTM17: &str = r#"PROJCS["WGS 84 / UTM zone 17N",GEOGCS["WGS 84",DATUM["WGS_1984",SPHEROID["WGS 84",6378137,298.257223563,AUTHORITY["EPSG","7030"]],AUTHORITY["EPSG","6326"]],PRIMEM["Greenwich",0,AUTHORITY["EPSG","8901"]],UNIT["degree",0.0174532925199433,AUTHORITY["EPSG","9122"]],AUTHORITY["EPSG","4326"]],PROJECTION["Transverse_Mercator"],PARAMETER["latitude_of_origin",0],PARAMETER["central_meridian",-81],PARAMETER["scale_factor",0.9996],PARAMETER["false_easting",500000],PARAMETER["false_northing",0],UNIT["metre",1,AUTHORITY["EPSG","9001"]],AXIS["Easting",EAST],AXIS["Northing",NORTH],AUTHORITY["EPSG","32617"]]"#;
@@ -585,6 +622,10 @@ mod tests {
             let e = crs_from_wkt(bad).unwrap_err();
             assert!(e.starts_with("CRS is not WKT"), "{bad}: {e}");
         }
+        let deep = format!("{}{}", "PROJCS[\"x\",".repeat(100_000), "]".repeat(100_000));
+        assert!(crs_from_wkt(&deep)
+            .unwrap_err()
+            .contains("nested deeper than 64"));
         assert!(crs_from_wkt(r#"LOCAL_CS["site grid"]"#)
             .unwrap_err()
             .contains("not a projected CRS"));
