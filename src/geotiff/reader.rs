@@ -98,7 +98,7 @@ impl GeoTiffError {
         !matches!(self, GeoTiffError::RowsOutOfRange { .. })
     }
 
-    fn from_geokeys(path: &Path, e: GeoKeyError) -> GeoTiffError {
+    pub(crate) fn from_geokeys(path: &Path, e: GeoKeyError) -> GeoTiffError {
         let path = path.to_path_buf();
         match e {
             GeoKeyError::NoGeoreferencing => GeoTiffError::NoGeoreferencing { path },

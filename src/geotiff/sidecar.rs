@@ -10,7 +10,9 @@
 
 use std::path::{Path, PathBuf};
 
+use super::geokeys::GeoKeyError;
 use super::reader::GeoTiffError;
+use crate::geo::GeoTransform;
 
 /// What a PAM sidecar says about the dataset (band statistics aside).
 #[derive(Clone, Debug, PartialEq)]
@@ -201,6 +203,130 @@ pub fn paths(tif: &Path) -> Vec<PathBuf> {
     all.push(tif.with_extension("prj"));
     all.retain(|p| p.is_file());
     all
+}
+
+/// What a GeoTIFF's own tags say of its georeferencing.
+pub struct InTags {
+    /// The transform of ModelPixelScale + ModelTiepoint or ModelTransformation.
+    pub transform: Result<GeoTransform, GeoKeyError>,
+    /// The CRS of the geokeys (empty keys: none).
+    pub crs: crate::geo::Crs,
+    /// The file has a GeoKeyDirectory.
+    pub names_a_crs: bool,
+    pub pixel_is_point: bool,
+}
+
+/// A GeoTIFF's georeferencing: its tags', with its side files'.
+pub struct Georeferencing {
+    pub geotransform: GeoTransform,
+    pub crs: crate::geo::Crs,
+    pub pixel_is_point: bool,
+    /// The side files it was taken from; empty: the tags alone.
+    pub georeferenced_by: Vec<PathBuf>,
+}
+
+/// A warning said once per process: a file is opened by the ingest plan and
+/// again by each reader, and a side file overriding its tags is news once.
+fn warn_once(message: String) {
+    use std::collections::HashSet;
+    use std::sync::{Mutex, OnceLock};
+    static SAID: OnceLock<Mutex<HashSet<String>>> = OnceLock::new();
+    let said = SAID.get_or_init(|| Mutex::new(HashSet::new()));
+    if said
+        .lock()
+        .map(|mut s| s.insert(message.clone()))
+        .unwrap_or(true)
+    {
+        tracing::warn!("{message}");
+    }
+}
+
+/// The georeferencing of the file's tags, completed or overridden by its side
+/// files in GDAL's order: the transform from the PAM sidecar, the tags, a
+/// world file; the CRS from the PAM sidecar, the tags (when they have keys),
+/// then an ESRI `.prj` (beyond GDAL).
+pub fn with_side_files(
+    path: &Path,
+    pam: Option<&Pam>,
+    in_tags: InTags,
+) -> Result<Georeferencing, GeoTiffError> {
+    let north_up = |by: &Path, g: [f64; 6]| {
+        let gt = GeoTransform(g);
+        match gt.is_north_up() {
+            true => Ok(gt),
+            false => Err(GeoTiffError::NotNorthUp {
+                path: by.to_path_buf(),
+                geotransform: g,
+            }),
+        }
+    };
+    let mut by = Vec::new();
+    let mut pixel_is_point = in_tags.pixel_is_point;
+    let pam_transform = pam.and_then(|p| Some((&p.path, p.geotransform?)));
+    let geotransform = match (pam_transform, in_tags.transform) {
+        (Some((aux, g)), tags) => {
+            by.push(aux.clone());
+            pixel_is_point = false;
+            if tags.is_ok_and(|t| t.0 != g) {
+                warn_once(format!(
+                    "{}: its GeoTransform {g:?} overrides the one of the file's own tags, as GDAL reads it",
+                    aux.display()
+                ));
+            }
+            north_up(aux, g)?
+        }
+        (None, Ok(gt)) => gt,
+        (None, Err(GeoKeyError::NoGeoreferencing)) => match world_file(path)? {
+            Some(w) => {
+                by.push(w.path.clone());
+                pixel_is_point = false;
+                north_up(&w.path, w.geotransform)?
+            }
+            None => return Err(GeoTiffError::NoGeoreferencing { path: path.into() }),
+        },
+        (None, Err(e)) => return Err(GeoTiffError::from_geokeys(path, e)),
+    };
+    let wkt_crs = |by: &Path, text: &str| {
+        crate::geotiff::wkt::crs_from_wkt(text).map_err(|detail| GeoTiffError::Sidecar {
+            path: by.to_path_buf(),
+            detail,
+        })
+    };
+    let crs = match pam.and_then(|p| Some((&p.path, p.srs.as_deref()?))) {
+        Some((aux, srs)) => {
+            if !by.contains(aux) {
+                by.push(aux.clone());
+            }
+            let crs = wkt_crs(aux, srs)?;
+            if in_tags.names_a_crs && !crs.same_as(&in_tags.crs) {
+                warn_once(format!(
+                    "{}: its CRS {} overrides the file's own {}, as GDAL reads it",
+                    aux.display(),
+                    crs.label(),
+                    in_tags.crs.label()
+                ));
+            }
+            crs
+        }
+        None if in_tags.names_a_crs => in_tags.crs,
+        None => match prj(path)? {
+            Some((prj, text)) => {
+                let crs = wkt_crs(&prj, &text)?;
+                by.push(prj);
+                crs
+            }
+            None => in_tags.crs,
+        },
+    };
+    if !by.is_empty() {
+        tracing::debug!(path = %path.display(), side_files = ?by, "georeferencing read beside the file");
+    }
+    Ok(Georeferencing {
+        geotransform,
+        crs,
+        pixel_is_point,
+        georeferenced_by: by,
+    })
 }
 
 #[cfg(test)]

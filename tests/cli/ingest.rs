@@ -368,6 +368,23 @@ fn a_dsm_georeferenced_by_side_files_is_its_twin_and_follows_them() {
     assert_eq!(dsm()["geotransform"][0], 630010.5, "the store is kept");
 }
 
+/// An `.aux.xml` whose GeoTransform differs from the file's own tags wins,
+/// as GDAL reads it, and the user is told so once.
+#[test]
+fn a_side_file_overriding_the_tags_is_taken_and_said_once() {
+    let tmp = tempfile::tempdir().unwrap();
+    let store = tmp.path().join("c.zarr");
+    let file = fixtures().join("geotiff").join("wf_pam_over_tags.tif");
+    let out = ingest(&[&file], &store, &[]);
+    assert_ok(&out);
+    let err = text(&out.stderr);
+    let said = "wf_pam_over_tags.tif.aux.xml: its GeoTransform [630010.5, 0.5, 0.0, 4830000.25, 0.0, -0.5] overrides the one of the file's own tags";
+    assert_eq!(err.matches(said).count(), 1, "{err}");
+    let info = dsmstream(&["info", store.to_str().unwrap(), "--json"]);
+    let catalog: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
+    assert_eq!(catalog["dsms"][0]["geotransform"][0], 630010.5);
+}
+
 /// Side files that cannot be read are refused by name, nothing written: a
 /// `.prj` whose CRS names no EPSG code and is no UTM zone, a world file of
 /// five numbers, an `.aux.xml` that is not XML, a rotated world file.

@@ -4,7 +4,7 @@
 //! file the decoder cannot read correctly, naming the reason.
 
 use std::io::{Read, Seek};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use tiff::decoder::{ifd::Value, ChunkType, Decoder};
 use tiff::tags::Tag;
@@ -446,18 +446,11 @@ pub(super) fn parse<R: Read + Seek>(
     Ok(ParsedTiff { info, layout })
 }
 
-struct Georeferencing {
-    geotransform: crate::geo::GeoTransform,
-    crs: crate::geo::Crs,
-    pixel_is_point: bool,
-    georeferenced_by: Vec<PathBuf>,
-}
-
 fn read_georeferencing<R: Read + Seek>(
     path: &Path,
     d: &mut Decoder<R>,
     pam: Option<&sidecar::Pam>,
-) -> Result<Georeferencing, GeoTiffError> {
+) -> Result<sidecar::Georeferencing, GeoTiffError> {
     let gk = |e| GeoTiffError::from_geokeys(path, e);
     let scale = f64_tag(path, d, tag::MODEL_PIXEL_SCALE)?;
     let tiepoint = f64_tag(path, d, tag::MODEL_TIEPOINT)?;
@@ -476,92 +469,17 @@ fn read_georeferencing<R: Read + Seek>(
     } else {
         GeoKeys::parse(&directory, &doubles, ascii.as_deref().unwrap_or("")).map_err(gk)?
     };
-    let in_tags = Georeferencing {
-        geotransform: crate::geo::GeoTransform([0.0; 6]),
+    let pixel_is_point = keys.pixel_is_point();
+    let in_tags = sidecar::InTags {
+        transform: geokeys::geotransform_from_tags(
+            scale.as_deref(),
+            tiepoint.as_deref(),
+            transformation.as_deref(),
+            pixel_is_point,
+        ),
         crs: geokeys::crs_from_tags(&directory, &doubles, ascii.as_deref()).map_err(gk)?,
-        pixel_is_point: keys.pixel_is_point(),
-        georeferenced_by: Vec::new(),
-    };
-    let transform = geokeys::geotransform_from_tags(
-        scale.as_deref(),
-        tiepoint.as_deref(),
-        transformation.as_deref(),
-        in_tags.pixel_is_point,
-    );
-    with_side_files(path, pam, in_tags, transform, !directory.is_empty())
-}
-
-/// The georeferencing of the file's tags, completed or overridden by its side
-/// files in GDAL's order: the transform from the PAM sidecar, the tags, a
-/// world file; the CRS from the PAM sidecar, the tags (when they have keys),
-/// then an ESRI `.prj` (beyond GDAL).
-fn with_side_files(
-    path: &Path,
-    pam: Option<&sidecar::Pam>,
-    in_tags: Georeferencing,
-    transform: Result<crate::geo::GeoTransform, geokeys::GeoKeyError>,
-    tags_name_a_crs: bool,
-) -> Result<Georeferencing, GeoTiffError> {
-    let north_up = |by: &Path, g: [f64; 6]| {
-        let gt = crate::geo::GeoTransform(g);
-        match gt.is_north_up() {
-            true => Ok(gt),
-            false => Err(GeoTiffError::NotNorthUp {
-                path: by.to_path_buf(),
-                geotransform: g,
-            }),
-        }
-    };
-    let mut by = Vec::new();
-    let mut pixel_is_point = in_tags.pixel_is_point;
-    let pam_transform = pam.and_then(|p| Some((&p.path, p.geotransform?)));
-    let geotransform = match (pam_transform, transform) {
-        (Some((aux, g)), _) => {
-            by.push(aux.clone());
-            pixel_is_point = false;
-            north_up(aux, g)?
-        }
-        (None, Ok(gt)) => gt,
-        (None, Err(geokeys::GeoKeyError::NoGeoreferencing)) => match sidecar::world_file(path)? {
-            Some(w) => {
-                by.push(w.path.clone());
-                pixel_is_point = false;
-                north_up(&w.path, w.geotransform)?
-            }
-            None => return Err(GeoTiffError::NoGeoreferencing { path: path.into() }),
-        },
-        (None, Err(e)) => return Err(GeoTiffError::from_geokeys(path, e)),
-    };
-    let wkt_crs = |by: &Path, text: &str| {
-        crate::geotiff::wkt::crs_from_wkt(text).map_err(|detail| GeoTiffError::Sidecar {
-            path: by.to_path_buf(),
-            detail,
-        })
-    };
-    let crs = match pam.and_then(|p| Some((&p.path, p.srs.as_deref()?))) {
-        Some((aux, srs)) => {
-            if !by.contains(aux) {
-                by.push(aux.clone());
-            }
-            wkt_crs(aux, srs)?
-        }
-        None if tags_name_a_crs => in_tags.crs,
-        None => match sidecar::prj(path)? {
-            Some((prj, text)) => {
-                let crs = wkt_crs(&prj, &text)?;
-                by.push(prj);
-                crs
-            }
-            None => in_tags.crs,
-        },
-    };
-    if !by.is_empty() {
-        tracing::debug!(path = %path.display(), side_files = ?by, "georeferencing read beside the file");
-    }
-    Ok(Georeferencing {
-        geotransform,
-        crs,
+        names_a_crs: !directory.is_empty(),
         pixel_is_point,
-        georeferenced_by: by,
-    })
+    };
+    sidecar::with_side_files(path, pam, in_tags)
 }
