@@ -101,6 +101,13 @@ fn summary_line(o: &DsmOutcome) -> String {
         format!("{:.1} s", o.seconds)
     };
     let plural = if o.levels == 1 { "" } else { "s" };
+    let names: Vec<String> = (o.georeferenced_by.iter())
+        .filter_map(|p| Some(p.file_name()?.to_string_lossy().into_owned()))
+        .collect();
+    let tail = match names.is_empty() {
+        true => tail,
+        false => format!("{tail}; georeferenced by {}", names.join(", ")),
+    };
     format!(
         "{action} {}: {} x {} px, {valid_pct:.1}% valid, {} level{plural}, {:.1} MB stored, {tail}",
         o.id,

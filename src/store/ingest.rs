@@ -61,6 +61,8 @@ pub struct DsmOutcome {
     /// Bytes of the DSM's group on disk.
     pub stored_bytes: u64,
     pub seconds: f64,
+    /// The side files its georeferencing was read from (none when skipped).
+    pub georeferenced_by: Vec<PathBuf>,
 }
 
 #[derive(Clone, Debug)]
@@ -254,6 +256,7 @@ fn ingest_one(
     let outcome = DsmOutcome {
         stored_bytes: files::dir_bytes(&store_path.join(&file.id)),
         seconds: started.elapsed().as_secs_f64(),
+        georeferenced_by: source.raster().georeferenced_by.clone(),
         ..outcome_of(&file, action, &meta)
     };
     tracing::info!(dsm = %file.id, seconds = outcome.seconds, "dsm ingested");
@@ -272,6 +275,7 @@ pub(super) fn outcome_of(file: &InputFile, action: DsmAction, meta: &DsmMeta) ->
         valid_count: meta.valid_count,
         stored_bytes: 0,
         seconds: 0.0,
+        georeferenced_by: Vec::new(),
     }
 }
 

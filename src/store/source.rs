@@ -24,6 +24,9 @@ pub struct SourceRaster {
     pub dtype: String,
     /// The unit GDAL's band metadata names for the heights ("m", "ft"...).
     pub height_unit: Option<String>,
+    /// The side files its georeferencing was read from (world file,
+    /// `.aux.xml`, `.prj`); empty when the file's tags say it all.
+    pub georeferenced_by: Vec<PathBuf>,
 }
 
 /// A failure to open or read a source; the message names the file.
@@ -99,6 +102,7 @@ impl GeoTiffSource {
             nodata: info.nodata,
             dtype: info.sample_type.gdal_name().to_string(),
             height_unit: info.band.unit.clone(),
+            georeferenced_by: info.georeferenced_by.clone(),
         };
         Ok(GeoTiffSource {
             reader,

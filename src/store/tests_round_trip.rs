@@ -180,6 +180,7 @@ fn store_from_raw_rasters_for_check_zarr() {
             nodata: j["nodata"].as_f64(),
             dtype: j["dtype"].as_str().unwrap().into(),
             height_unit: None,
+            georeferenced_by: Vec::new(),
         };
         inputs
             .rasters

@@ -62,6 +62,7 @@ impl Inputs {
             nodata: Some(-9999.0),
             dtype: "Float32".into(),
             height_unit: None,
+            georeferenced_by: Vec::new(),
         };
         self.rasters
             .insert(path.clone(), MemSource { raster, data });

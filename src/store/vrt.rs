@@ -104,6 +104,10 @@ impl VrtSource {
                 .filter_map(|s| s.reader.raster().height_unit.clone())
                 .find(|u| crate::geotiff::gdal_metadata::is_feet(u))
                 .or_else(|| first.reader.raster().height_unit.clone()),
+            // the sources' side files, in source order
+            georeferenced_by: (sources.iter())
+                .flat_map(|s| s.reader.raster().georeferenced_by.clone())
+                .collect(),
         };
         Ok(VrtSource {
             raster,

@@ -327,7 +327,8 @@ fn a_half_float_dsm_is_ingested_within_a_half_float_step_of_its_twin() {
 
 /// A DSM georeferenced only beside the file (a `.wld` world file and an ESRI
 /// `.prj`, as ArcGIS delivers it) is one collection with its twin whose
-/// GeoTIFF tags say the same: same CRS, place and heights. The store records
+/// GeoTIFF tags say the same: same CRS, place and heights; ingest names the
+/// side files it read. The store records
 /// the side files: a world file moved 10 m east re-ingests the DSM 10 m east,
 /// and without its `.prj` the DSM has no CRS and is refused, the store kept.
 #[test]
@@ -349,7 +350,10 @@ fn a_dsm_georeferenced_by_side_files_is_its_twin_and_follows_them() {
         let catalog: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
         catalog["dsms"][0].clone()
     };
-    assert_ok(&ingest(&[&tif], &store, &[]));
+    let out = ingest(&[&tif], &store, &[]);
+    assert_ok(&out);
+    let said = text(&out.stdout);
+    assert!(said.contains("; georeferenced by a.wld, a.prj"), "{said}");
     assert_eq!(dsm()["geotransform"][0], 630000.5);
     assert_eq!(dsm()["crs"]["epsg"], 32617);
     assert_eq!(dsm()["source"]["side_files"].as_array().unwrap().len(), 2);

@@ -115,6 +115,7 @@ mod tests {
             valid_count: 150_000,
             stored_bytes: 0,
             seconds: 0.0,
+            georeferenced_by: Vec::new(),
         };
         assert_eq!(
             ingest_line(&[o.clone(), o]),
