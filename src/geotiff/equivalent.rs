@@ -9,7 +9,7 @@
 //! [`same_keys`] compares two user-defined descriptions by what they define,
 //! not by their citations.
 
-use super::geokeys::{key, GeoKeyValue, GeoKeys, USER_DEFINED};
+use super::geokeys::{key, GeoKeyValue, GeoKeys, METRE, USER_DEFINED};
 use crate::geo::Crs;
 
 /// The EPSG code of `crs`: its own, or the UTM zone its user-defined keys
@@ -54,7 +54,6 @@ const CITATIONS: [u16; 4] = [
 
 const MODEL_PROJECTED: u16 = 1;
 const COORD_TRANS_TRANSVERSE_MERCATOR: u16 = 1;
-const METRE: u16 = 9001;
 
 /// The EPSG code of a user-defined projected CRS that is a UTM zone on
 /// WGS 84 (326zz / 327zz), NAD83 (269zz, zones 1-23) or ETRS89 (258zz, zones

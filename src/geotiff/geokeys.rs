@@ -227,7 +227,7 @@ fn describe_custom(keys: &GeoKeys, model: Option<u16>) -> String {
 }
 
 /// EPSG unit code of the metre.
-const METRE: u16 = 9001;
+pub const METRE: u16 = 9001;
 
 /// The units of length of a CRS other than the metre, horizontal first: e.g.
 /// "horizontal unit US survey foot (EPSG unit 9003)". A unit key

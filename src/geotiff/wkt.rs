@@ -12,7 +12,7 @@
 //! definition cannot be compared with the other DSMs' safely).
 
 use super::equivalent::identify_utm;
-use super::geokeys::{crs_from_tags, key, GeoKeyValue, GeoKeys, USER_DEFINED};
+use super::geokeys::{crs_from_tags, key, GeoKeyValue, GeoKeys, METRE, USER_DEFINED};
 use crate::geo::Crs;
 
 /// One bracketed WKT node: `KEYWORD[arg, arg, ...]`.
@@ -225,7 +225,6 @@ impl Parser {
 /// EPSG unit codes of the feet GeoTIFF keys name.
 const FOOT: (f64, u16) = (0.3048, 9002);
 const US_SURVEY_FOOT: (f64, u16) = (0.304_800_609_601_219_2, 9003);
-const METRE: u16 = 9001;
 
 /// The GeoKey value of a length unit of `m` metres: the EPSG unit code when
 /// there is one, else `None` (a size GeoTIFF keys give only horizontally).
