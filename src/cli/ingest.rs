@@ -7,6 +7,7 @@ use std::cell::RefCell;
 use std::path::PathBuf;
 
 use dsmstream::store::ingest::{DsmAction, DsmOutcome, IngestProgress};
+use dsmstream::store::warp::ZoneChoice;
 use dsmstream::store::{ingest, Compression, IngestOptions, StorageSettings};
 use dsmstream::InputError;
 use tracing_indicatif::span_ext::IndicatifSpanExt;
@@ -35,6 +36,15 @@ pub struct Args {
     /// Re-ingest DSMs even when their source is unchanged.
     #[arg(long)]
     pub force: bool,
+    /// The UTM zone DSMs in longitude and latitude are put into, e.g. 37N or
+    /// 33S (default: the collection's zone, else the zone of their centre).
+    #[arg(long, value_parser = parse_zone)]
+    pub utm_zone: Option<ZoneChoice>,
+}
+
+fn parse_zone(text: &str) -> Result<ZoneChoice, String> {
+    ZoneChoice::parse(text)
+        .ok_or_else(|| format!("not a UTM zone: {text:?} (1N to 60N, 1S to 60S, e.g. 37N)"))
 }
 
 fn parse_compression(text: &str) -> Result<Compression, String> {
@@ -107,6 +117,13 @@ fn summary_line(o: &DsmOutcome) -> String {
     let tail = match names.is_empty() {
         true => tail,
         false => format!("{tail}; georeferenced by {}", names.join(", ")),
+    };
+    let tail = match &o.warped {
+        None => tail,
+        Some(w) => format!(
+            "{tail}; reprojected from {} to {} at {} m (bilinear)",
+            w.from, w.to, w.pixel_m
+        ),
     };
     format!(
         "{action} {}: {} x {} px, {valid_pct:.1}% valid, {} level{plural}, {:.1} MB stored, {tail}",
@@ -213,6 +230,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             ..Default::default()
         },
         force: args.force,
+        utm_zone: args.utm_zone,
     };
     require_writable_dir(&args.store)?;
     let inputs = expand_lists(&args.inputs)?;

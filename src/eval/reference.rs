@@ -164,7 +164,13 @@ fn raster_points(
 ) -> Result<(Vec<[f64; 3]>, Vec<String>), EvalError> {
     let mut reader = GeoTiffReader::open(path)?;
     let info = reader.info().clone();
-    if let Some(crs) = store.crs() {
+    let gt = info.geotransform;
+    // a reference in longitude and latitude (SRTM, Copernicus) is projected
+    // point by point into a store in a UTM zone on its datum
+    let projection = store
+        .crs()
+        .and_then(|crs| crate::store::warp::projection_into(&info.crs, crs));
+    if let (Some(crs), None) = (store.crs(), &projection) {
         if !info.crs.same_as(crs) {
             return Err(EvalError::Input(format!(
                 "{}: CRS {} differs from the store's {}",
@@ -174,8 +180,14 @@ fn raster_points(
             )));
         }
     }
-    let gt = info.geotransform;
-    let bounds = gt.extent(info.width, info.height);
+    let bounds = match &projection {
+        Some(tm) => {
+            let [e0, n0, e1, n1] =
+                crate::store::warp::projected_bounds(tm, &gt, info.width, info.height);
+            Bounds::from_corners((e0, n0), (e1, n1))
+        }
+        None => gt.extent(info.width, info.height),
+    };
     if !bounds.overlaps(&store_bounds) {
         return Err(EvalError::Input(format!(
             "{}: does not overlap the store (reference {:.1?}, store {:.1?})",
@@ -196,6 +208,7 @@ fn raster_points(
             let z = row[c as usize];
             if !z.is_nan() {
                 let (x, y) = gt.pixel_to_world(c as f64 + 0.5, r as f64 + 0.5);
+                let (x, y) = projection.as_ref().map_or((x, y), |tm| tm.forward(x, y));
                 points.push([x, y, z as f64]);
             }
         }
@@ -203,6 +216,12 @@ fn raster_points(
     let mut notes = Vec::new();
     if stride > 1 {
         notes.push(format!("every {stride}th pixel in x and y sampled"));
+    }
+    if projection.is_some() {
+        notes.push(format!(
+            "reference pixel centres projected from {}",
+            info.crs.label()
+        ));
     }
     Ok((points, notes))
 }

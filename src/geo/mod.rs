@@ -9,6 +9,7 @@
 pub mod bounds;
 pub mod crs;
 pub mod rigid;
+pub mod tm;
 pub mod transform;
 
 pub use bounds::Bounds;

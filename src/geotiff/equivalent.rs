@@ -10,6 +10,7 @@
 //! not by their citations.
 
 use super::geokeys::{key, GeoKeyValue, GeoKeys, METRE, USER_DEFINED};
+use crate::geo::tm::{Datum, Utm};
 use crate::geo::Crs;
 
 /// The EPSG code of `crs`: its own, or the UTM zone its user-defined keys
@@ -72,30 +73,42 @@ pub fn identify_utm(keys: &GeoKeys) -> Option<u32> {
         return None;
     }
     let (zone, north) = utm_zone(keys)?;
-    let datum = match (
+    let datum = keys_datum(keys)?;
+    Utm {
+        datum,
+        zone: zone as u8,
+        north,
+    }
+    .epsg()
+}
+
+/// The datum (of the three with UTM codes) a geographic CRS's keys name, by
+/// the geographic CRS's code or, user-defined, by the datum's code.
+fn keys_datum(keys: &GeoKeys) -> Option<Datum> {
+    match (
         keys.short(key::GEOGRAPHIC_TYPE),
         keys.short(param::GEODETIC_DATUM),
     ) {
-        (Some(4326), _) | (None | Some(USER_DEFINED), Some(6326)) => Datum::Wgs84,
-        (Some(4269), _) | (None | Some(USER_DEFINED), Some(6269)) => Datum::Nad83,
-        (Some(4258), _) | (None | Some(USER_DEFINED), Some(6258)) => Datum::Etrs89,
-        _ => return None,
-    };
-    let zone = u32::from(zone);
-    match (datum, north) {
-        (Datum::Wgs84, true) => Some(32600 + zone),
-        (Datum::Wgs84, false) => Some(32700 + zone),
-        (Datum::Nad83, true) if zone <= 23 => Some(26900 + zone),
-        (Datum::Etrs89, true) if (28..=38).contains(&zone) => Some(25800 + zone),
+        (Some(4326), _) | (None | Some(USER_DEFINED), Some(6326)) => Some(Datum::Wgs84),
+        (Some(4269), _) | (None | Some(USER_DEFINED), Some(6269)) => Some(Datum::Nad83),
+        (Some(4258), _) | (None | Some(USER_DEFINED), Some(6258)) => Some(Datum::Etrs89),
         _ => None,
     }
 }
 
-#[derive(Clone, Copy)]
-enum Datum {
-    Wgs84,
-    Nad83,
-    Etrs89,
+/// The datum of a geographic CRS (longitude and latitude) when it is WGS 84,
+/// NAD83 or ETRS89, the datums whose UTM zones have EPSG codes.
+pub fn geographic_datum(crs: &Crs) -> Option<Datum> {
+    if !crs.is_geographic {
+        return None;
+    }
+    match crs.epsg {
+        Some(4326) => Some(Datum::Wgs84),
+        Some(4269) => Some(Datum::Nad83),
+        Some(4258) => Some(Datum::Etrs89),
+        Some(_) => None,
+        None => keys_datum(&parse(crs)?),
+    }
 }
 
 /// The UTM zone (1-60) and hemisphere the projection keys define.

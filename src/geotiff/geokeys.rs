@@ -194,6 +194,60 @@ pub fn crs_from_tags(
     })
 }
 
+/// The [`Crs`] that GeoTIFF keys `entries` describe, as a file holding them
+/// would be read.
+pub(crate) fn crs_from_entries(entries: Vec<(u16, GeoKeyValue)>) -> Result<Crs, GeoKeyError> {
+    let (directory, doubles, ascii) = encode(entries);
+    crs_from_tags(&directory, &doubles, Some(&ascii))
+}
+
+/// The projected CRS of a UTM zone (by its EPSG code) with the vertical keys
+/// of `heights` (the CRS a DSM's heights were given in, kept when a DSM in
+/// longitude and latitude is put into the zone).
+pub fn utm_crs(utm: &crate::geo::tm::Utm, heights: &Crs) -> Option<Crs> {
+    let code = u16::try_from(utm.epsg()?).ok()?;
+    let mut entries = vec![
+        (key::GT_MODEL_TYPE, GeoKeyValue::Short(MODEL_PROJECTED)),
+        (key::GT_RASTER_TYPE, GeoKeyValue::Short(1)),
+        (key::PROJECTED_CS_TYPE, GeoKeyValue::Short(code)),
+    ];
+    let ascii = heights.geo_ascii.as_deref().unwrap_or("");
+    if let Ok(keys) = GeoKeys::parse(&heights.geokeys, &heights.geo_doubles, ascii) {
+        let vertical = (keys.entries.into_iter()).filter(|(id, _)| (4096..=4099).contains(id));
+        entries.extend(vertical);
+    }
+    crs_from_entries(entries).ok()
+}
+
+/// The GeoKeyDirectory, GeoDoubleParams and GeoAsciiParams of `entries`.
+fn encode(mut entries: Vec<(u16, GeoKeyValue)>) -> (Vec<u16>, Vec<f64>, String) {
+    const DOUBLES: u16 = 34736;
+    const ASCII: u16 = 34737;
+    entries.sort_by_key(|(id, _)| *id);
+    let mut directory = vec![1, 1, 0, entries.len() as u16];
+    let (mut doubles, mut ascii) = (Vec::new(), String::new());
+    for (id, value) in entries {
+        let entry = match value {
+            GeoKeyValue::Short(v) => [id, 0, 1, v],
+            GeoKeyValue::Shorts(v) => [id, 0, 1, v.first().copied().unwrap_or(0)],
+            GeoKeyValue::Doubles(v) => {
+                let at = doubles.len() as u16;
+                doubles.extend(&v);
+                [id, DOUBLES, v.len() as u16, at]
+            }
+            GeoKeyValue::Ascii(s) => {
+                let s = s.replace('|', "/");
+                let at = ascii.len() as u16;
+                ascii.push_str(&s);
+                ascii.push('|');
+                [id, ASCII, s.len() as u16 + 1, at]
+            }
+        };
+        directory.extend(entry);
+    }
+    (directory, doubles, ascii)
+}
+
 /// A readable description of a CRS without an EPSG code: its kind and the
 /// codes it does name, then the citations GDAL wrote (skipping "unknown").
 fn describe_custom(keys: &GeoKeys, model: Option<u16>) -> String {

@@ -12,7 +12,7 @@
 //! definition cannot be compared with the other DSMs' safely).
 
 use super::equivalent::identify_utm;
-use super::geokeys::{crs_from_tags, key, GeoKeyValue, GeoKeys, METRE, USER_DEFINED};
+use super::geokeys::{crs_from_entries, key, GeoKeyValue, GeoKeys, METRE, USER_DEFINED};
 use crate::geo::Crs;
 
 /// One bracketed WKT node: `KEYWORD[arg, arg, ...]`.
@@ -280,8 +280,7 @@ pub fn crs_from_wkt(text: &str) -> Result<Crs, String> {
         key::GT_CITATION,
         GeoKeyValue::Ascii(horizontal.name().to_string()),
     ));
-    let (directory, doubles, ascii) = encode(entries);
-    crs_from_tags(&directory, &doubles, Some(&ascii)).map_err(|e| e.to_string())
+    crs_from_entries(entries).map_err(|e| e.to_string())
 }
 
 /// The EPSG code of a WKT CRS's horizontal part (of a compound or bound CRS
@@ -453,35 +452,6 @@ fn vertical_keys(crs: &Node) -> Result<Vec<(u16, GeoKeyValue)>, String> {
 /// Lower case, spaces and dashes as underscores: how ESRI and OGC names compare.
 fn normalised(name: &str) -> String {
     name.trim().to_ascii_lowercase().replace([' ', '-'], "_")
-}
-
-/// The GeoKeyDirectory, GeoDoubleParams and GeoAsciiParams of `entries`.
-fn encode(mut entries: Vec<(u16, GeoKeyValue)>) -> (Vec<u16>, Vec<f64>, String) {
-    const DOUBLES: u16 = 34736;
-    const ASCII: u16 = 34737;
-    entries.sort_by_key(|(id, _)| *id);
-    let mut directory = vec![1, 1, 0, entries.len() as u16];
-    let (mut doubles, mut ascii) = (Vec::new(), String::new());
-    for (id, value) in entries {
-        let entry = match value {
-            GeoKeyValue::Short(v) => [id, 0, 1, v],
-            GeoKeyValue::Shorts(v) => [id, 0, 1, v.first().copied().unwrap_or(0)],
-            GeoKeyValue::Doubles(v) => {
-                let at = doubles.len() as u16;
-                doubles.extend(&v);
-                [id, DOUBLES, v.len() as u16, at]
-            }
-            GeoKeyValue::Ascii(s) => {
-                let s = s.replace('|', "/");
-                let at = ascii.len() as u16;
-                ascii.push_str(&s);
-                ascii.push('|');
-                [id, ASCII, s.len() as u16 + 1, at]
-            }
-        };
-        directory.extend(entry);
-    }
-    (directory, doubles, ascii)
 }
 
 #[cfg(test)]

@@ -36,6 +36,9 @@ pub struct IngestOptions {
     /// Re-ingest DSMs whose source did not change (and replace same-id DSMs
     /// that came from another file).
     pub force: bool,
+    /// The UTM zone DSMs in longitude and latitude are put into (default:
+    /// the collection's, or the zone of their centre).
+    pub utm_zone: Option<super::warp::ZoneChoice>,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -63,6 +66,8 @@ pub struct DsmOutcome {
     pub seconds: f64,
     /// The side files its georeferencing was read from (none when skipped).
     pub georeferenced_by: Vec<PathBuf>,
+    /// Put from longitude and latitude into a UTM zone (none when skipped).
+    pub warped: Option<super::warp::Warped>,
 }
 
 #[derive(Clone, Debug)]
@@ -168,6 +173,9 @@ pub fn ingest_with(
     for outcome in &outcomes {
         progress.dsm_finished(outcome);
     }
+    let paths: Vec<&Path> = todo.iter().map(|(f, _)| f.path.as_path()).collect();
+    let zone = super::warp::choose_zone(attrs.crs.as_ref(), options.utm_zone, &paths, open)?;
+    let open = &|path: &Path| super::warp::open_in_zone(open, zone, path);
     validate_all(store_path, &attrs, &todo, open)?;
     if !todo.is_empty() {
         let created = create_store(store_path)?;
@@ -257,6 +265,7 @@ fn ingest_one(
         stored_bytes: files::dir_bytes(&store_path.join(&file.id)),
         seconds: started.elapsed().as_secs_f64(),
         georeferenced_by: source.raster().georeferenced_by.clone(),
+        warped: source.warped(),
         ..outcome_of(&file, action, &meta)
     };
     tracing::info!(dsm = %file.id, seconds = outcome.seconds, "dsm ingested");
@@ -276,6 +285,7 @@ pub(super) fn outcome_of(file: &InputFile, action: DsmAction, meta: &DsmMeta) ->
         stored_bytes: 0,
         seconds: 0.0,
         georeferenced_by: Vec::new(),
+        warped: None,
     }
 }
 

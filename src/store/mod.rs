@@ -32,6 +32,7 @@ mod stats;
 pub mod validate;
 pub mod view;
 pub mod vrt;
+pub mod warp;
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};

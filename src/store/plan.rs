@@ -10,6 +10,7 @@ use super::ingest::{outcome_of, DsmAction, DsmOutcome, IngestError};
 use super::lock::{StoreLock, LOCK_FILE};
 use super::source::SourceOpener;
 use super::source::SourceRaster;
+use super::warp::Warped;
 use super::{validate, StoreError};
 use crate::geo::Crs;
 
@@ -170,6 +171,7 @@ fn plan_one(
 /// Header checks; `collection` is the CRS every DSM must share and where it came from.
 fn validate(
     raster: &SourceRaster,
+    warped: Option<&Warped>,
     path: &Path,
     collection: &mut Option<(Crs, String)>,
 ) -> Result<(), IngestError> {
@@ -189,7 +191,7 @@ fn validate(
     }
     if raster.crs.is_geographic {
         return bad(format!(
-            "geographic CRS {} (degrees) is not a metric frame; reproject to a projected CRS first, e.g. gdalwarp -t_srs EPSG:326xx",
+            "geographic CRS {} (degrees) is not a metric frame, and only longitude and latitude on WGS 84, NAD83 or ETRS89 are put into UTM here; reproject to a projected CRS first, e.g. gdalwarp -t_srs EPSG:326xx",
             raster.crs.label()
         ));
     }
@@ -217,8 +219,9 @@ fn validate(
     }
     match collection {
         Some((crs, origin)) if !crs.same_as(&raster.crs) => bad(format!(
-            "CRS {} differs from the collection's CRS {} (from {origin}); reproject it to the same CRS",
+            "CRS {}{} differs from the collection's CRS {} (from {origin}); reproject it to the same CRS",
             raster.crs.label(),
+            warped.map_or(String::new(), |w| format!(" (put there from {})", w.from)),
             crs.label()
         )),
         Some(_) => Ok(()),
@@ -271,7 +274,12 @@ pub(super) fn validate_all(
         .map(|c| (c, format!("the store {}", store.display())));
     for (file, _) in todo {
         let source = open(&file.path)?;
-        validate(source.raster(), &file.path, &mut collection)?;
+        validate(
+            source.raster(),
+            source.warped().as_ref(),
+            &file.path,
+            &mut collection,
+        )?;
     }
     Ok(())
 }

@@ -55,6 +55,12 @@ pub trait RowSource: Send {
         *out = self.read_rows(row0, rows)?;
         Ok(())
     }
+
+    /// What this source was before it was put into a UTM zone, if it was
+    /// ([`super::warp::WarpSource`]).
+    fn warped(&self) -> Option<super::warp::Warped> {
+        None
+    }
 }
 
 /// Opens a source from a path (the GeoTIFF opener, or a test double).

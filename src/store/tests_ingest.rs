@@ -74,7 +74,7 @@ fn store_refuses_bad_inputs_before_writing() {
         30,
         30,
         Crs {
-            epsg: Some(4326),
+            epsg: Some(4230),
             is_geographic: true,
             ..Default::default()
         },
@@ -86,7 +86,7 @@ fn store_refuses_bad_inputs_before_writing() {
     let cases = [
         (
             geo,
-            "geographic CRS EPSG:4326 (degrees) is not a metric frame",
+            "geographic CRS EPSG:4230 (degrees) is not a metric frame",
         ),
         (
             other,

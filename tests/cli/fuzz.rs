@@ -98,6 +98,7 @@ fn template_store() -> &'static Path {
                 ..Default::default()
             },
             force: false,
+            utm_zone: None,
         };
         let inputs = [
             fixtures().join("synth/grid2x2/tile_00.tif"),

@@ -135,17 +135,80 @@ fn assert_refused(out: &Output, store: &Path, file: &str, why: &str) {
     assert!(!store.exists(), "nothing written for a refused input");
 }
 
+/// A DSM in longitude and latitude (demcompare's SRTM tile, 3" pixels,
+/// EPSG:4326) is put into the collection's UTM zone as it is read, and says
+/// so; `--utm-zone` chooses another zone, which must still be the
+/// collection's; degrees on another datum, or far outside the zone, are
+/// refused by name.
 #[test]
-fn geographic_srtm_is_refused_with_exit_2() {
+fn a_dsm_in_degrees_is_put_into_the_collections_utm_zone() {
     let tmp = tempfile::tempdir().unwrap();
     let store = tmp.path().join("c.zarr");
-    let out = ingest(&[&fixture("demcompare_srtm/srtm_ref.tif")], &store, &[]);
-    assert_refused(
-        &out,
+    let degrees = fixture("demcompare_srtm/srtm_ref.tif");
+    assert_ok(&ingest(
+        &[&fixture("demcompare_srtm/srtm_bs_utm.tif")],
         &store,
-        "srtm_ref.tif",
-        "geographic CRS EPSG:4326 (degrees) is not a metric frame",
+        &[],
+    ));
+    let out = ingest(&[&degrees], &store, &[]);
+    assert_ok(&out);
+    let said = text(&out.stdout);
+    assert!(
+        said.contains("ingested srtm_ref: 1015 x 1301 px")
+            && said.contains(
+                "reprojected from EPSG:4326 to EPSG:32637, UTM 37N (WGS 84) at 72 m (bilinear)"
+            ),
+        "{said}"
     );
+    let info = dsmstream(&["info", &store.display().to_string(), "--json"]);
+    let catalog: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
+    let dsm = (catalog["dsms"].as_array().unwrap().iter())
+        .find(|d| d["id"] == "srtm_ref")
+        .unwrap();
+    assert_eq!(dsm["crs"]["epsg"], 32637, "{dsm}");
+    assert_eq!(dsm["geotransform"][1], 72.0, "{dsm}");
+
+    // another zone: its own store takes it, this one refuses it
+    let other = tmp.path().join("z38.zarr");
+    let out = ingest(&[&degrees], &other, &["--utm-zone", "38N"]);
+    assert_ok(&out);
+    assert!(text(&out.stdout).contains("to EPSG:32638, UTM 38N (WGS 84)"));
+    let before = snapshot(&store);
+    let out = ingest(&[&degrees], &store, &["--utm-zone", "38N", "--force"]);
+    assert_refusal(
+        &out,
+        "srtm_ref.tif",
+        "CRS EPSG:32638 (put there from EPSG:4326) differs from the collection's CRS EPSG:32637",
+    );
+    assert_eq!(snapshot(&store), before);
+
+    let write = |name: &str, code: u16, lon: f64| {
+        let crs = dsmstream::geo::Crs {
+            epsg: Some(u32::from(code)),
+            is_geographic: true,
+            geokeys: vec![1, 1, 0, 3, 1024, 0, 1, 2, 1025, 0, 1, 1, 2048, 0, 1, code],
+            ..Default::default()
+        };
+        write_with_crs(tmp.path(), name, crs, (lon, 39.5), 1.0 / 1200.0)
+    };
+    let ed50 = write("ed50.tif", 4230, 40.0);
+    let out = ingest(&[&ed50], &store, &[]);
+    assert_refusal(
+        &out,
+        "ed50.tif",
+        "geographic CRS EPSG:4230 (degrees) is not a metric frame",
+    );
+    let far = write("far.tif", 4326, 100.0);
+    let out = ingest(&[&far], &store, &[]);
+    assert_refusal(
+        &out,
+        "far.tif",
+        "its footprint (longitude 100.0000 to 100.0267",
+    );
+    assert_eq!(snapshot(&store), before);
+    let bad_zone = ingest(&[&degrees], &other, &["--utm-zone", "61N"]);
+    assert_eq!(bad_zone.status.code(), Some(2));
+    assert!(text(&bad_zone.stderr).contains("not a UTM zone: \"61N\""));
 }
 
 /// A 32 x 32 ramp of heights with this CRS and a pixel of `pixel` m from

@@ -116,6 +116,7 @@ mod tests {
             stored_bytes: 0,
             seconds: 0.0,
             georeferenced_by: Vec::new(),
+            warped: None,
         };
         assert_eq!(
             ingest_line(&[o.clone(), o]),

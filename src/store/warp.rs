@@ -1,0 +1,555 @@
+//! DSMs delivered in longitude and latitude (SRTM, Copernicus, ALOS, NASADEM:
+//! the global DSMs) are put into a UTM zone as they are read, so they register
+//! in metres with the rest of the collection.
+//!
+//! One zone per run ([`choose_zone`]): the zone `--utm-zone` names, else the
+//! collection's when it is already in a UTM zone on the same datum, else the
+//! zone of the centre of the geographic inputs. Each geographic input becomes a
+//! [`WarpSource`]: a [`RowSource`] that hands out rows of a north-up grid in
+//! the zone, with square pixels as fine as the source's finer axis there,
+//! snapped to multiples of the pixel, each pixel the bilinear interpolation
+//! of the source at its centre (GDAL's `-r bilinear`; where a neighbour is
+//! no-data the weights of the others are used, and a pixel whose nearest
+//! source pixel is no-data stays no-data). Heights are not changed: the
+//! vertical keys of the source are kept.
+
+use std::path::Path;
+
+use rayon::prelude::*;
+
+use super::ingest::IngestError;
+use super::source::{RowSource, SourceError, SourceOpener, SourceRaster};
+use crate::geo::tm::{Datum, TransverseMercator, Utm};
+use crate::geo::{Crs, GeoTransform};
+use crate::geotiff::equivalent::{code, geographic_datum};
+
+/// Exact inverse projections every this many output columns; linear between
+/// (2.3e-4 of a pixel at most for 72 m pixels, the unit test; GDAL's warper
+/// allows 0.125 pixel by default).
+const KNOT_STEP: usize = 16;
+/// Farthest a DSM may reach from the zone's central meridian, degrees of
+/// longitude (a UTM zone spans 3; the scale error at 15 degrees is 3.5 %).
+const MAX_FROM_MERIDIAN_DEG: f64 = 15.0;
+/// UTM's limits of latitude.
+const MAX_LATITUDE_DEG: f64 = 84.0;
+
+/// A UTM zone asked for on the command line: "37N", "33S".
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ZoneChoice {
+    pub zone: u8,
+    pub north: bool,
+}
+
+impl ZoneChoice {
+    pub fn parse(text: &str) -> Option<ZoneChoice> {
+        let text = text.trim();
+        let (digits, hemisphere) = text.split_at(text.len().checked_sub(1)?);
+        let north = match hemisphere {
+            "N" | "n" => true,
+            "S" | "s" => false,
+            _ => return None,
+        };
+        let zone: u8 = digits.parse().ok()?;
+        (1..=60)
+            .contains(&zone)
+            .then_some(ZoneChoice { zone, north })
+    }
+}
+
+/// The UTM zone this run puts its geographic inputs into, or `None` when no
+/// input is in longitude and latitude on WGS 84, NAD83 or ETRS89 (others are
+/// refused later by the header checks).
+pub(super) fn choose_zone(
+    collection: Option<&Crs>,
+    forced: Option<ZoneChoice>,
+    paths: &[&Path],
+    open: &SourceOpener,
+) -> Result<Option<Utm>, IngestError> {
+    let mut collection = collection.cloned();
+    let mut datum = None;
+    let (mut lon, mut lat) = (
+        (f64::INFINITY, f64::NEG_INFINITY),
+        (f64::INFINITY, f64::NEG_INFINITY),
+    );
+    for path in paths {
+        let source = open(path)?;
+        let raster = source.raster();
+        let Some(d) = geographic_datum(&raster.crs) else {
+            if !raster.crs.is_geographic && collection.is_none() {
+                collection = Some(raster.crs.clone());
+            }
+            continue;
+        };
+        datum.get_or_insert(d);
+        let b = raster.geotransform.bounds(raster.width, raster.height);
+        lon = (lon.0.min(b[0]), lon.1.max(b[2]));
+        lat = (lat.0.min(b[1]), lat.1.max(b[3]));
+    }
+    let Some(datum) = datum else {
+        return Ok(None);
+    };
+    if let Some(ZoneChoice { zone, north }) = forced {
+        return Ok(Some(Utm { datum, zone, north }));
+    }
+    let collection_zone = (collection.as_ref())
+        .and_then(code)
+        .and_then(Utm::from_epsg)
+        .filter(|u| u.datum == datum);
+    Ok(Some(collection_zone.unwrap_or_else(|| {
+        Utm::containing(datum, 0.5 * (lon.0 + lon.1), 0.5 * (lat.0 + lat.1))
+    })))
+}
+
+/// `open`, with sources in longitude and latitude on `zone`'s datum put into
+/// `zone`; other sources as they are.
+pub(super) fn open_in_zone(
+    open: &SourceOpener,
+    zone: Option<Utm>,
+    path: &Path,
+) -> Result<Box<dyn RowSource>, SourceError> {
+    let source = open(path)?;
+    match zone {
+        Some(zone) if geographic_datum(&source.raster().crs) == Some(zone.datum) => {
+            Ok(Box::new(WarpSource::new(source, zone)?))
+        }
+        _ => Ok(source),
+    }
+}
+
+/// What a DSM read through a [`WarpSource`] was and became, for the user.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Warped {
+    /// The source's CRS ("EPSG:4326").
+    pub from: String,
+    /// "EPSG:32637, UTM 37N (WGS 84)".
+    pub to: String,
+    /// The output pixel (m).
+    pub pixel_m: f64,
+}
+
+/// A source in longitude and latitude read as a grid in a UTM zone.
+pub struct WarpSource {
+    inner: Box<dyn RowSource>,
+    raster: SourceRaster,
+    mapping: Mapping,
+    source_size: (u64, u64),
+    warped: Warped,
+    /// Source rows of the last read (first row, values).
+    rows: (u64, Vec<f32>),
+}
+
+impl WarpSource {
+    pub fn new(inner: Box<dyn RowSource>, zone: Utm) -> Result<WarpSource, SourceError> {
+        let src = inner.raster().clone();
+        let bad = |message: String| SourceError {
+            message: format!("{}: {message}", src.path.display()),
+            bad_input: true,
+        };
+        let code = zone.epsg().ok_or_else(|| {
+            bad(format!(
+                "{} has no EPSG code to put this DSM into; choose another zone (--utm-zone) or reproject first",
+                zone.label()
+            ))
+        })?;
+        let gt = src.geotransform;
+        let [lon0, lat0, lon1, lat1] = gt.bounds(src.width, src.height);
+        let meridian = -183.0 + 6.0 * f64::from(zone.zone);
+        let centre_lon = 0.5 * (lon0 + lon1);
+        let from_meridian =
+            ((centre_lon - meridian + 540.0).rem_euclid(360.0) - 180.0).abs() + 0.5 * (lon1 - lon0);
+        let finite = [lon0, lat0, lon1, lat1].iter().all(|v| v.is_finite());
+        if !(gt.is_north_up() && finite)
+            || lat0 < -MAX_LATITUDE_DEG
+            || lat1 > MAX_LATITUDE_DEG
+            || from_meridian > MAX_FROM_MERIDIAN_DEG
+        {
+            return Err(bad(format!(
+                "its footprint (longitude {lon0:.4} to {lon1:.4}, latitude {lat0:.4} to {lat1:.4}) cannot be put into {}: UTM needs latitudes within {MAX_LATITUDE_DEG} degrees and longitudes within {MAX_FROM_MERIDIAN_DEG} degrees of the zone's central meridian {meridian}; choose the zone (--utm-zone) or reproject first (gdalwarp -t_srs EPSG:...)",
+                zone.label()
+            )));
+        }
+        let crs = crate::geotiff::geokeys::utm_crs(&zone, &src.crs)
+            .ok_or_else(|| bad(format!("cannot describe {} as GeoTIFF keys", zone.label())))?;
+        let tm = zone.projection();
+        let (grid, width, height) = output_grid(&tm, &gt, src.width, src.height, zone.datum);
+        let warped = Warped {
+            from: src.crs.label(),
+            to: format!("EPSG:{code}, {}", zone.label()),
+            pixel_m: grid.gsd_x(),
+        };
+        let raster = SourceRaster {
+            width,
+            height,
+            geotransform: grid,
+            crs,
+            nodata: None,
+            dtype: "Float32".to_string(),
+            ..src.clone()
+        };
+        let mapping = Mapping {
+            tm,
+            grid,
+            width: width as usize,
+            source_gt: gt,
+            centre_lon,
+        };
+        Ok(WarpSource {
+            inner,
+            raster,
+            mapping,
+            source_size: (src.width, src.height),
+            warped,
+            rows: (0, Vec::new()),
+        })
+    }
+}
+
+/// Where each output pixel's centre falls in the source.
+struct Mapping {
+    tm: TransverseMercator,
+    /// The output grid (UTM) and its width.
+    grid: GeoTransform,
+    width: usize,
+    /// The source's geotransform (degrees).
+    source_gt: GeoTransform,
+    /// Longitude of the source's centre: inverse longitudes are taken within
+    /// 180 degrees of it (a source in 0..360 longitudes).
+    centre_lon: f64,
+}
+
+impl Mapping {
+    /// Source pixel positions (column, row; pixel centres at whole numbers)
+    /// of output row `row`'s pixel centres: exact every [`KNOT_STEP`]
+    /// columns, linear between.
+    fn positions(&self, row: u64, out: &mut Vec<(f64, f64)>) {
+        let (width, gt) = (self.width, &self.grid);
+        let knots = width.div_ceil(KNOT_STEP) + 1;
+        let knot: Vec<(f64, f64)> = (0..knots)
+            .map(|k| {
+                let (e, n) = gt.pixel_to_world((k * KNOT_STEP) as f64 + 0.5, row as f64 + 0.5);
+                let (lon, lat) = self.tm.inverse(e, n);
+                let lon = lon + 360.0 * ((self.centre_lon - lon) / 360.0).round();
+                let (u, v) = self.source_gt.world_to_pixel(lon, lat);
+                (u - 0.5, v - 0.5)
+            })
+            .collect();
+        out.clear();
+        out.extend((0..width).map(|c| {
+            let (k, t) = (c / KNOT_STEP, (c % KNOT_STEP) as f64 / KNOT_STEP as f64);
+            let (a, b) = (knot[k], knot[k + 1]);
+            (a.0 + t * (b.0 - a.0), a.1 + t * (b.1 - a.1))
+        }));
+    }
+}
+
+/// The output grid of a source in longitude and latitude: square pixels of
+/// the source's finer axis at its centre (two significant digits), the
+/// projected footprint snapped outwards to multiples of the pixel.
+fn output_grid(
+    tm: &TransverseMercator,
+    gt: &GeoTransform,
+    width: u64,
+    height: u64,
+    datum: Datum,
+) -> (GeoTransform, u64, u64) {
+    let [_, lat0, _, lat1] = gt.bounds(width, height);
+    let (per_lon, per_lat) = datum.ellipsoid().metres_per_degree(0.5 * (lat0 + lat1));
+    let pixel = round_to_two_digits((gt.gsd_x() * per_lon).min(gt.gsd_y() * per_lat));
+    let [e0, n0, e1, n1] = projected_bounds(tm, gt, width, height);
+    let (x0, y1) = ((e0 / pixel).floor() * pixel, (n1 / pixel).ceil() * pixel);
+    let w = ((e1 - x0) / pixel).ceil().max(1.0) as u64;
+    let h = ((y1 - n0) / pixel).ceil().max(1.0) as u64;
+    (GeoTransform::north_up(x0, y1, pixel, pixel), w, h)
+}
+
+/// The box (min E, min N, max E, max N) holding the projected footprint of
+/// a raster in longitude and latitude (its edges at 64 points each).
+pub fn projected_bounds(
+    tm: &TransverseMercator,
+    gt: &GeoTransform,
+    width: u64,
+    height: u64,
+) -> [f64; 4] {
+    let [lon0, lat0, lon1, lat1] = gt.bounds(width, height);
+    let (mut e0, mut n0, mut e1, mut n1) = (
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    );
+    const EDGE_POINTS: usize = 64;
+    for i in 0..=EDGE_POINTS {
+        let t = i as f64 / EDGE_POINTS as f64;
+        let (lon, lat) = (lon0 + t * (lon1 - lon0), lat0 + t * (lat1 - lat0));
+        for (x, y) in [(lon, lat0), (lon, lat1), (lon0, lat), (lon1, lat)] {
+            let (e, n) = tm.forward(x, y);
+            (e0, n0, e1, n1) = (e0.min(e), n0.min(n), e1.max(e), n1.max(n));
+        }
+    }
+    [e0, n0, e1, n1]
+}
+
+/// The projection that puts a raster in longitude and latitude (`crs`) into
+/// `collection`'s CRS: `Some` when `crs` is geographic on WGS 84, NAD83 or
+/// ETRS89 and `collection` a UTM zone on the same datum.
+pub fn projection_into(crs: &Crs, collection: &Crs) -> Option<TransverseMercator> {
+    let datum = geographic_datum(crs)?;
+    let zone = code(collection).and_then(Utm::from_epsg)?;
+    (zone.datum == datum).then(|| zone.projection())
+}
+
+/// `x` rounded to two significant digits (71.4 -> 71, 0.926 -> 0.93).
+fn round_to_two_digits(x: f64) -> f64 {
+    let scale = 10f64.powf(x.log10().floor() - 1.0);
+    (x / scale).round() * scale
+}
+
+impl RowSource for WarpSource {
+    fn raster(&self) -> &SourceRaster {
+        &self.raster
+    }
+
+    fn warped(&self) -> Option<Warped> {
+        Some(self.warped.clone())
+    }
+
+    fn read_rows(&mut self, row0: u64, rows: u64) -> Result<Vec<f32>, SourceError> {
+        let (sw, sh) = (self.source_size.0 as usize, self.source_size.1);
+        let width = self.raster.width as usize;
+        // the source rows this block reads: its first and last rows' extremes
+        // (parallels curve, so the knots of both rows are looked at)
+        let mut positions = Vec::with_capacity(width);
+        let (mut vmin, mut vmax) = (f64::INFINITY, f64::NEG_INFINITY);
+        for row in [row0, row0 + rows.max(1) - 1] {
+            self.mapping.positions(row, &mut positions);
+            for &(_, v) in &positions {
+                (vmin, vmax) = (vmin.min(v), vmax.max(v));
+            }
+        }
+        let first = (vmin.floor() - 1.0).clamp(0.0, sh as f64) as u64;
+        let last = (vmax.ceil() + 2.0).clamp(0.0, sh as f64) as u64;
+        if last > first {
+            let (at, data) = &mut self.rows;
+            let held = *at <= first && *at + (data.len() / sw.max(1)) as u64 >= last;
+            if !held {
+                self.inner.read_rows_into(first, last - first, data)?;
+                *at = first;
+            }
+        }
+        let (at, data) = (&self.rows.0, &self.rows.1);
+        let held_rows = (data.len() / sw.max(1)) as i64;
+        let sample = |i: i64, j: i64| -> Option<f32> {
+            let j = j - *at as i64;
+            if i < 0 || i >= sw as i64 || j < 0 || j >= held_rows {
+                return None;
+            }
+            Some(data[j as usize * sw + i as usize]).filter(|z| z.is_finite())
+        };
+        // rows in parallel, each on its own: the same values on any thread count
+        let mut out = vec![0.0; width * rows as usize];
+        let mapping = &self.mapping;
+        (out.par_chunks_mut(width.max(1)).enumerate()).for_each_init(
+            Vec::new,
+            |positions, (k, row)| {
+                mapping.positions(row0 + k as u64, positions);
+                for (z, &(u, v)) in row.iter_mut().zip(positions.iter()) {
+                    *z = bilinear(&sample, u, v);
+                }
+            },
+        );
+        Ok(out)
+    }
+}
+
+/// The bilinear interpolation at (u, v) (pixel centres at whole numbers) of
+/// the valid neighbours, renormalised; no-data when the nearest is no-data.
+fn bilinear(sample: &impl Fn(i64, i64) -> Option<f32>, u: f64, v: f64) -> f32 {
+    if sample(u.round() as i64, v.round() as i64).is_none() {
+        return f32::NAN;
+    }
+    let (i, j) = (u.floor(), v.floor());
+    let (fx, fy) = (u - i, v - j);
+    let (i, j) = (i as i64, j as i64);
+    let (mut sum, mut weight) = (0.0, 0.0);
+    for (di, dj, w) in [
+        (0, 0, (1.0 - fx) * (1.0 - fy)),
+        (1, 0, fx * (1.0 - fy)),
+        (0, 1, (1.0 - fx) * fy),
+        (1, 1, fx * fy),
+    ] {
+        if let Some(z) = sample(i + di, j + dj) {
+            sum += w * f64::from(z);
+            weight += w;
+        }
+    }
+    (sum / weight) as f32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::store::source::MemSource;
+    use std::path::PathBuf;
+
+    fn geographic(lon0: f64, lat1: f64, deg: f64, w: u64, h: u64, data: Vec<f32>) -> MemSource {
+        let crs = crate::geotiff::geokeys::crs_from_entries(vec![
+            (1024, crate::geotiff::geokeys::GeoKeyValue::Short(2)),
+            (2048, crate::geotiff::geokeys::GeoKeyValue::Short(4326)),
+        ])
+        .unwrap();
+        MemSource {
+            raster: SourceRaster {
+                path: PathBuf::from("geo.tif"),
+                width: w,
+                height: h,
+                geotransform: GeoTransform::north_up(lon0, lat1, deg, deg),
+                crs,
+                nodata: None,
+                dtype: "Int16".into(),
+                height_unit: None,
+                georeferenced_by: Vec::new(),
+            },
+            data,
+        }
+    }
+
+    #[test]
+    fn zone_choices_parse() {
+        assert_eq!(
+            ZoneChoice::parse("37N"),
+            Some(ZoneChoice {
+                zone: 37,
+                north: true
+            })
+        );
+        assert_eq!(
+            ZoneChoice::parse("1s"),
+            Some(ZoneChoice {
+                zone: 1,
+                north: false
+            })
+        );
+        for bad in ["", "N", "0N", "61N", "37", "37X", "-3N"] {
+            assert_eq!(ZoneChoice::parse(bad), None, "{bad}");
+        }
+    }
+
+    #[test]
+    fn pixels_round_to_two_digits() {
+        assert_eq!(round_to_two_digits(71.4), 71.0);
+        assert!((round_to_two_digits(0.926) - 0.93).abs() < 1e-12);
+        assert_eq!(round_to_two_digits(23.72), 24.0);
+        assert_eq!(round_to_two_digits(105.0), 110.0);
+    }
+
+    /// A plane in longitude and latitude is a plane in UTM too (nearly, over
+    /// a few kilometres): the warped heights are the plane at each output
+    /// pixel's own longitude and latitude, and the knots' interpolation is
+    /// exact to a thousandth of a pixel.
+    #[test]
+    fn a_plane_is_resampled_at_each_pixels_own_position() {
+        let (w, h, deg) = (120u64, 90u64, 1.0 / 1200.0);
+        let (lon0, lat1) = (40.3, 39.7);
+        let plane = |lon: f64, lat: f64| 1000.0 + 5000.0 * (lon - lon0) - 3000.0 * (lat - lat1);
+        let data = (0..h)
+            .flat_map(|r| (0..w).map(move |c| (r, c)))
+            .map(|(r, c)| {
+                plane(lon0 + (c as f64 + 0.5) * deg, lat1 - (r as f64 + 0.5) * deg) as f32
+            })
+            .collect();
+        let zone = Utm::from_epsg(32637).unwrap();
+        let mut warp =
+            WarpSource::new(Box::new(geographic(lon0, lat1, deg, w, h, data)), zone).unwrap();
+        let r = warp.raster().clone();
+        assert_eq!(r.crs.epsg, Some(32637));
+        // 3" pixels at 39.66 N: 71.5 m across, 92.5 m along the meridian
+        assert_eq!(r.geotransform.gsd_x(), 72.0);
+        assert_eq!(r.geotransform.0[0] % 72.0, 0.0);
+        let values = warp.read_rows(0, r.height).unwrap();
+        let tm = zone.projection();
+        let (mut inside, mut worst_pos) = (0, 0.0f64);
+        let mut positions = Vec::new();
+        for row in 0..r.height {
+            warp.mapping.positions(row, &mut positions);
+            for col in 0..r.width {
+                let (e, n) = r
+                    .geotransform
+                    .pixel_to_world(col as f64 + 0.5, row as f64 + 0.5);
+                let (lon, lat) = tm.inverse(e, n);
+                let (u, v) = ((lon - lon0) / deg - 0.5, (lat1 - lat) / deg - 0.5);
+                let got = positions[col as usize];
+                worst_pos = worst_pos.max((got.0 - u).abs()).max((got.1 - v).abs());
+                let z = values[(row * r.width + col) as usize];
+                let interior = u > 0.0 && v > 0.0 && u < (w - 1) as f64 && v < (h - 1) as f64;
+                if interior {
+                    inside += 1;
+                    assert!(
+                        (f64::from(z) - plane(lon, lat)).abs() < 1e-3,
+                        "({col}, {row}): {z} against {}",
+                        plane(lon, lat)
+                    );
+                }
+                let outside = u < -0.5 || v < -0.5 || u > w as f64 - 0.5 || v > h as f64 - 0.5;
+                if outside {
+                    assert!(z.is_nan(), "({col}, {row}) outside the source: {z}");
+                }
+            }
+        }
+        assert!(worst_pos < 1e-3, "knot interpolation off by {worst_pos} px");
+        assert!(inside as u64 > r.width * r.height / 2);
+        // read in blocks of 7 rows: the same values
+        let mut blocks = Vec::new();
+        let mut row0 = 0;
+        while row0 < r.height {
+            let rows = 7.min(r.height - row0);
+            blocks.extend(warp.read_rows(row0, rows).unwrap());
+            row0 += rows;
+        }
+        let same = blocks
+            .iter()
+            .zip(&values)
+            .all(|(a, b)| a.to_bits() == b.to_bits());
+        assert!(same && blocks.len() == values.len());
+        // and on one thread
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        let alone = one.install(|| warp.read_rows(0, r.height).unwrap());
+        assert!(alone
+            .iter()
+            .zip(&values)
+            .all(|(a, b)| a.to_bits() == b.to_bits()));
+    }
+
+    #[test]
+    fn no_data_stays_where_it_is_nearest() {
+        let (w, h, deg) = (40u64, 40u64, 1.0 / 1200.0);
+        let data: Vec<f32> = (0..w * h)
+            .map(|k| if k % w < 20 { f32::NAN } else { 50.0 })
+            .collect();
+        let zone = Utm::from_epsg(32637).unwrap();
+        let mut warp =
+            WarpSource::new(Box::new(geographic(40.0, 39.0, deg, w, h, data)), zone).unwrap();
+        let r = warp.raster().clone();
+        let values = warp.read_rows(0, r.height).unwrap();
+        let valid: Vec<f32> = values.iter().copied().filter(|z| z.is_finite()).collect();
+        assert!(!valid.is_empty() && valid.iter().all(|&z| z == 50.0));
+        let share = valid.len() as f64 / values.len() as f64;
+        assert!((0.3..0.6).contains(&share), "valid share {share}");
+    }
+
+    #[test]
+    fn footprints_utm_cannot_hold_are_refused_by_name() {
+        let zone = Utm::from_epsg(32637).unwrap();
+        let far = geographic(80.0, 40.0, 0.01, 10, 10, vec![1.0; 100]);
+        let err = WarpSource::new(Box::new(far), zone).err().unwrap();
+        assert!(
+            err.bad_input && err.message.starts_with("geo.tif: its footprint"),
+            "{}",
+            err.message
+        );
+        let polar = geographic(39.0, 89.0, 0.01, 10, 10, vec![1.0; 100]);
+        assert!(WarpSource::new(Box::new(polar), zone).is_err());
+    }
+}
