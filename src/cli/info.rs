@@ -85,6 +85,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             n
         );
     }
+    let reprojected: Vec<String> = (dsms.iter())
+        .filter_map(|d| {
+            let w = d.reprojected.as_ref()?;
+            Some(format!("{} (from {} at {} m)", d.id, w.from, w.pixel_m))
+        })
+        .collect();
+    if !reprojected.is_empty() {
+        let _ = writeln!(t, "put into UTM at ingest: {}", reprojected.join(", "));
+    }
     let _ = writeln!(
         t,
         "{} DSMs, CRS {crs}, {} overlapping footprint pairs",

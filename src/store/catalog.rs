@@ -132,6 +132,9 @@ pub struct DsmMeta {
     /// and not no-data. Absent in stores written before the record existed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub chunk_record: Option<ChunkRecord>,
+    /// Put into a UTM zone from longitude and latitude at ingest.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reprojected: Option<super::warp::Warped>,
 }
 
 impl DsmMeta {
@@ -334,6 +337,7 @@ pub(crate) mod tests {
             source_dtype: "Float32".into(),
             storage: StorageSettings::default(),
             chunk_record: None,
+            reprojected: None,
         }
     }
 

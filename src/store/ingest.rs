@@ -66,7 +66,7 @@ pub struct DsmOutcome {
     pub seconds: f64,
     /// The side files its georeferencing was read from (none when skipped).
     pub georeferenced_by: Vec<PathBuf>,
-    /// Put from longitude and latitude into a UTM zone (none when skipped).
+    /// Put from longitude and latitude into a UTM zone.
     pub warped: Option<super::warp::Warped>,
 }
 
@@ -265,7 +265,6 @@ fn ingest_one(
         stored_bytes: files::dir_bytes(&store_path.join(&file.id)),
         seconds: started.elapsed().as_secs_f64(),
         georeferenced_by: source.raster().georeferenced_by.clone(),
-        warped: source.warped(),
         ..outcome_of(&file, action, &meta)
     };
     tracing::info!(dsm = %file.id, seconds = outcome.seconds, "dsm ingested");
@@ -285,7 +284,7 @@ pub(super) fn outcome_of(file: &InputFile, action: DsmAction, meta: &DsmMeta) ->
         stored_bytes: 0,
         seconds: 0.0,
         georeferenced_by: Vec::new(),
-        warped: None,
+        warped: meta.reprojected.clone(),
     }
 }
 
@@ -360,6 +359,7 @@ fn write_levels(
         source_dtype: raster.dtype.clone(),
         storage: *settings,
         chunk_record: Some(ChunkRecord { empty_runs }),
+        reprojected: source.warped(),
     };
     super::validate::check_dsm(&meta)
         .map_err(|m| IngestError::BadInput(format!("{}: {m}", file.path.display())))?;

@@ -116,8 +116,9 @@ pub(super) fn open_in_zone(
     }
 }
 
-/// What a DSM read through a [`WarpSource`] was and became, for the user.
-#[derive(Clone, Debug, PartialEq)]
+/// What a DSM read through a [`WarpSource`] was and became, for the user
+/// (kept in the store's catalog).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Warped {
     /// The source's CRS ("EPSG:4326").
     pub from: String,
@@ -182,8 +183,6 @@ impl WarpSource {
             height,
             geotransform: grid,
             crs,
-            nodata: None,
-            dtype: "Float32".to_string(),
             ..src.clone()
         };
         let mapping = Mapping {

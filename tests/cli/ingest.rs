@@ -167,6 +167,19 @@ fn a_dsm_in_degrees_is_put_into_the_collections_utm_zone() {
         .unwrap();
     assert_eq!(dsm["crs"]["epsg"], 32637, "{dsm}");
     assert_eq!(dsm["geotransform"][1], 72.0, "{dsm}");
+    assert_eq!(dsm["reprojected"]["from"], "EPSG:4326", "{dsm}");
+    assert_eq!(dsm["source_dtype"], "Int16", "{dsm}");
+    let table = text(&dsmstream(&["info", &store.display().to_string()]).stdout);
+    assert!(
+        table.contains("put into UTM at ingest: srtm_ref (from EPSG:4326 at 72 m)"),
+        "{table}"
+    );
+    // unchanged, skipped: the line still says where it came from
+    let again = text(&ingest(&[&degrees], &store, &[]).stdout);
+    assert!(
+        again.contains("skipped  srtm_ref") && again.contains("reprojected from EPSG:4326"),
+        "{again}"
+    );
 
     // another zone: its own store takes it, this one refuses it
     let other = tmp.path().join("z38.zarr");
