@@ -1,14 +1,21 @@
 //! Stable areas given as GeoJSON polygons: a FeatureCollection, a Feature or a
 //! bare geometry of type Polygon, MultiPolygon or GeometryCollection, with
 //! coordinates in the DSMs' CRS (the old `"crs"` member, when present, must
-//! name the same EPSG code). Rasterised by cell centre (even-odd rule, so
-//! holes are excluded; overlapping polygons add up) onto a lattice chosen by
-//! the caller.
+//! name the same EPSG code), or in longitude and latitude as RFC 7946 has
+//! them (put into the DSMs' UTM zone by [`Polygons::projected`]; the caller
+//! decides). Rasterised by cell centre (even-odd rule, so holes are excluded;
+//! overlapping polygons add up) onto a lattice chosen by the caller.
 
 use serde_json::Value;
 
 use super::raster::BitRaster;
+use crate::geo::tm::TransverseMercator;
 use crate::geo::{Bounds, GeoTransform};
+
+/// The longest piece (degrees) a polygon edge in longitude and latitude is
+/// projected as: about 100 m, where a straight edge in degrees bows from the
+/// chord by well under a millimetre.
+pub const MAX_EDGE_DEG: f64 = 0.001;
 
 /// One polygon: its outer ring, then its holes; each ring a closed or open
 /// list of (x, y).
@@ -19,7 +26,8 @@ pub type Polygon = Vec<Vec<[f64; 2]>>;
 pub struct Polygons {
     pub polygons: Vec<Polygon>,
     /// From `"crs": {"properties": {"name": "...EPSG::32617"}}`; None when
-    /// absent. `Some(None)`: a CRS is named but not as an EPSG code (CRS84).
+    /// absent. OGC's CRS84 (longitude, latitude on WGS 84) counts as 4326.
+    /// `Some(None)`: a CRS is named but not as an EPSG code.
     pub named_epsg: Option<Option<u32>>,
 }
 
@@ -53,6 +61,42 @@ impl Polygons {
             b.max_y = b.max_y.max(p[1]);
         }
         b
+    }
+
+    /// True when every vertex could be a longitude and latitude.
+    pub fn could_be_degrees(&self) -> bool {
+        let b = self.bounds();
+        b.min_x >= -180.0 && b.max_x <= 360.0 && b.min_y >= -90.0 && b.max_y <= 90.0
+    }
+
+    /// The polygons with (longitude, latitude) vertices put through `tm`,
+    /// each edge first cut into pieces of at most [`MAX_EDGE_DEG`] so that it
+    /// stays the curve it is in metres.
+    pub fn projected(&self, tm: &TransverseMercator) -> Polygons {
+        let ring = |ring: &Vec<[f64; 2]>| -> Vec<[f64; 2]> {
+            let n = ring.len();
+            let mut out = Vec::with_capacity(n);
+            for k in 0..n {
+                let (a, b) = (ring[k], ring[(k + 1) % n]);
+                let span = (b[0] - a[0]).abs().max((b[1] - a[1]).abs());
+                let pieces = (span / MAX_EDGE_DEG).ceil().clamp(1.0, 1e6) as usize;
+                // the closing edge of an open ring too; a closed ring's last
+                // vertex repeats its first, an edge of length zero
+                for i in 0..pieces {
+                    let t = i as f64 / pieces as f64;
+                    let (lon, lat) = (a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]));
+                    let (e, n) = tm.forward(lon, lat);
+                    out.push([e, n]);
+                }
+            }
+            out
+        };
+        Polygons {
+            polygons: (self.polygons.iter())
+                .map(|p| p.iter().map(ring).collect())
+                .collect(),
+            named_epsg: None,
+        }
     }
 
     /// A raster of `width` x `height` cells placed by `geotransform`: a cell
@@ -100,6 +144,9 @@ fn ring_crossings(ring: &[[f64; 2]], y: f64, out: &mut Vec<f64>) {
 fn named_crs(doc: &Value) -> Option<Option<u32>> {
     let name = doc.get("crs")?.get("properties")?.get("name")?.as_str()?;
     let upper = name.to_ascii_uppercase();
+    if upper.ends_with("CRS84") {
+        return Some(Some(4326));
+    }
     if !upper.contains("EPSG") {
         return Some(None);
     }
@@ -223,6 +270,9 @@ mod tests {
         assert!(Polygons::parse("{").unwrap_err().starts_with("not JSON"));
         let crs84 = r#"{"type": "Polygon", "crs": {"properties": {"name": "urn:ogc:def:crs:OGC:1.3:CRS84"}},
             "coordinates": [[[0, 0], [1, 0], [1, 1]]]}"#;
-        assert_eq!(Polygons::parse(crs84).unwrap().named_epsg, Some(None));
+        assert_eq!(Polygons::parse(crs84).unwrap().named_epsg, Some(Some(4326)));
+        let other = r#"{"type": "Polygon", "crs": {"properties": {"name": "urn:ogc:def:crs:IGNF:LAMB93"}},
+            "coordinates": [[[0, 0], [1, 0], [1, 1]]]}"#;
+        assert_eq!(Polygons::parse(other).unwrap().named_epsg, Some(None));
     }
 }

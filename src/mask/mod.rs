@@ -6,8 +6,10 @@
 //! Two inputs, one representation ([`StableMask`]: bits on a lattice plus 2x
 //! overviews, 1 bit per cell in memory):
 //! - a GeoTIFF in the DSMs' projected CRS: non-zero = stable; zero, no-data
-//!   and NaN = excluded;
-//! - GeoJSON polygons ([`geojson`]) in the DSMs' CRS: inside = stable,
+//!   and NaN = excluded; or in longitude and latitude on the datum of the
+//!   DSMs' UTM zone, sampled (nearest cell) on the finest DSM's lattice;
+//! - GeoJSON polygons ([`geojson`]) in the DSMs' CRS, or in longitude and
+//!   latitude (projected into the DSMs' UTM zone): inside = stable,
 //!   rasterised at the finest DSM's pixel on its lattice over the DSMs' extent.
 
 pub mod geojson;
@@ -159,7 +161,11 @@ fn read_geotiff(path: &Path, target: &MaskTarget) -> Result<BitRaster, MaskError
     };
     let mut reader = GeoTiffReader::open(path)?;
     let info = reader.info().clone();
-    if let Some(crs) = &target.crs {
+    // a mask in longitude and latitude (global land cover) is sampled into
+    // DSMs in a UTM zone on its datum
+    let projection =
+        (target.crs.as_ref()).and_then(|crs| crate::store::warp::projection_into(&info.crs, crs));
+    if let (Some(crs), None) = (&target.crs, &projection) {
         if info.crs.is_geographic || !info.crs.same_as(crs) {
             return Err(invalid(format!(
                 "the mask's CRS {} is not the DSMs' CRS {}; reproject the mask (gdalwarp -t_srs {})",
@@ -189,13 +195,109 @@ fn read_geotiff(path: &Path, target: &MaskTarget) -> Result<BitRaster, MaskError
             }
         }
     }
-    Ok(raster)
+    Ok(match projection {
+        Some(tm) => in_zone(&raster, tm, target),
+        None => raster,
+    })
+}
+
+/// A mask in degrees on the finest DSM lattice over the part of the DSMs'
+/// extent it covers: each cell takes the mask cell its centre falls in (the
+/// positions exact every 16 cells, as ingest puts DSMs into UTM). A mask that
+/// covers none of the DSMs comes back as one cell over its projected box, for
+/// the caller's message.
+fn in_zone(
+    bits: &BitRaster,
+    tm: crate::geo::tm::TransverseMercator,
+    target: &MaskTarget,
+) -> BitRaster {
+    let (w, h) = (bits.width as u64, bits.height as u64);
+    let [e0, n0, e1, n1] = crate::store::warp::projected_bounds(&tm, &bits.geotransform, w, h);
+    let projected = Bounds::from_corners((e0, n0), (e1, n1));
+    let Some(area) = projected.intersection(&target.extent) else {
+        let gt = GeoTransform::north_up(e0, n1, (e1 - e0).max(1e-3), (n1 - n0).max(1e-3));
+        return BitRaster::new(gt, 1, 1);
+    };
+    let (gt, width, height) = lattice_over(&area, target.finest);
+    let mapping = crate::store::warp::Mapping::new(tm, gt, width as usize, bits.geotransform, w);
+    let mut out = BitRaster::new(gt, width, height);
+    let mut positions = Vec::new();
+    for row in 0..height {
+        mapping.positions(row as u64, &mut positions);
+        for (col, &(u, v)) in positions.iter().enumerate() {
+            if bits.get(u.round() as i64, v.round() as i64) {
+                out.set(col as i64, row);
+            }
+        }
+    }
+    out
+}
+
+/// The finest DSM lattice snapped outwards around `area`, coarsened 2x until
+/// it holds at most [`MAX_MASK_CELLS`]: its placement, width and height.
+fn lattice_over(area: &Bounds, finest: GeoTransform) -> (GeoTransform, i64, i64) {
+    let mut gt = finest;
+    loop {
+        let (c0, r0) = gt.world_to_pixel(area.min_x, area.max_y);
+        let (c1, r1) = gt.world_to_pixel(area.max_x, area.min_y);
+        let (c0, r0) = (c0.floor(), r0.floor());
+        let (w, h) = ((c1.ceil() - c0) as i64, (r1.ceil() - r0) as i64);
+        if (w.max(1) * h.max(1)) as u64 <= MAX_MASK_CELLS {
+            let (x0, y0) = gt.pixel_to_world(c0, r0);
+            let placed = GeoTransform([x0, gt.0[1], 0.0, y0, 0.0, gt.0[5]]);
+            return (placed, w.max(1), h.max(1));
+        }
+        gt = gt.overview(1);
+    }
+}
+
+/// The projection that puts polygons in longitude and latitude into the DSMs'
+/// UTM zone: when the document names WGS 84, ETRS89 or NAD83 degrees (or
+/// CRS84), or names nothing, as RFC 7946 has it, and every vertex could be a
+/// longitude and latitude while the DSMs' extent could not. WGS 84 is taken
+/// as the zone's datum (the three differ by 1-2 m).
+fn degrees_into(
+    polygons: &geojson::Polygons,
+    target: &MaskTarget,
+) -> Result<Option<crate::geo::tm::TransverseMercator>, String> {
+    use crate::geo::tm::Utm;
+    let named_degrees = matches!(polygons.named_epsg, Some(Some(4326 | 4258 | 4269)));
+    let e = &target.extent;
+    let dsms_in_degrees_range =
+        e.min_x >= -180.0 && e.max_x <= 360.0 && e.min_y >= -90.0 && e.max_y <= 90.0;
+    let unnamed_degrees =
+        polygons.named_epsg.is_none() && polygons.could_be_degrees() && !dsms_in_degrees_range;
+    if !(named_degrees || unnamed_degrees) {
+        return Ok(None);
+    }
+    if !polygons.could_be_degrees() {
+        return Err(format!(
+            "the polygons name EPSG:{} (longitude and latitude) but reach {:?}, beyond degrees",
+            polygons.named_epsg.flatten().unwrap_or(4326),
+            polygons.bounds().to_array()
+        ));
+    }
+    let zone = (target.crs.as_ref())
+        .and_then(crate::geotiff::equivalent::code)
+        .and_then(Utm::from_epsg);
+    match zone {
+        Some(zone) => Ok(Some(zone.projection())),
+        None if named_degrees => Err(format!(
+            "the polygons are in longitude and latitude and the DSMs' CRS {} is not a UTM zone; reproject them (ogr2ogr -t_srs {})",
+            target.crs.as_ref().map_or("unknown".to_string(), |c| c.label()),
+            target.crs.as_ref().map_or("EPSG:...".to_string(), |c| c.label()),
+        )),
+        None => Ok(None),
+    }
 }
 
 /// GeoJSON polygons rasterised on the finest DSM's lattice over the part of
 /// the DSMs' extent they cover (coarsened 2x until within [`MAX_MASK_CELLS`]).
 fn read_geojson(text: &str, target: &MaskTarget) -> Result<BitRaster, String> {
-    let polygons = geojson::Polygons::parse(text)?;
+    let mut polygons = geojson::Polygons::parse(text)?;
+    if let Some(tm) = degrees_into(&polygons, target)? {
+        polygons = polygons.projected(&tm);
+    }
     if let (Some(named), Some(crs)) = (polygons.named_epsg, &target.crs) {
         if named != crs.epsg || crs.epsg.is_none() {
             let shown = named.map_or("a non-EPSG CRS".to_string(), |c| format!("EPSG:{c}"));
@@ -214,20 +316,8 @@ fn read_geojson(text: &str, target: &MaskTarget) -> Result<BitRaster, String> {
             target.extent.to_array()
         ));
     };
-    let mut gt = target.finest;
-    loop {
-        // the DSM lattice, snapped outwards around the covered area
-        let (c0, r0) = gt.world_to_pixel(area.min_x, area.max_y);
-        let (c1, r1) = gt.world_to_pixel(area.max_x, area.min_y);
-        let (c0, r0) = (c0.floor(), r0.floor());
-        let (w, h) = ((c1.ceil() - c0) as i64, (r1.ceil() - r0) as i64);
-        if (w.max(1) * h.max(1)) as u64 <= MAX_MASK_CELLS {
-            let (x0, y0) = gt.pixel_to_world(c0, r0);
-            let placed = GeoTransform([x0, gt.0[1], 0.0, y0, 0.0, gt.0[5]]);
-            return Ok(polygons.rasterise(placed, w.max(1), h.max(1)));
-        }
-        gt = gt.overview(1);
-    }
+    let (placed, w, h) = lattice_over(&area, target.finest);
+    Ok(polygons.rasterise(placed, w, h))
 }
 
 #[cfg(test)]

@@ -95,6 +95,118 @@ fn geojson_polygons_are_rasterised_on_the_finest_dsm_lattice() {
     );
 }
 
+/// The polygons of the test above in longitude and latitude, as RFC 7946
+/// GeoJSON has them (no "crs" member, or CRS84 named): put into the DSMs'
+/// UTM zone, the same cells are stable. Degrees into DSMs that are not in a
+/// UTM zone are refused.
+#[test]
+fn geojson_in_degrees_is_put_into_the_dsms_utm_zone() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("degrees.geojson");
+    let tm = crate::geo::tm::Utm::from_epsg(32617).unwrap().projection();
+    let ring: Vec<String> = [
+        (499_990.0, 4_799_990.0),
+        (500_032.0, 4_799_990.0),
+        (500_032.0, 4_800_070.0),
+        (499_990.0, 4_800_070.0),
+    ]
+    .iter()
+    .map(|&(e, n)| {
+        let (lon, lat) = tm.inverse(e, n);
+        format!("[{lon:.12}, {lat:.12}]")
+    })
+    .collect();
+    let text = format!(
+        r#"{{"type": "Polygon", "coordinates": [[{}]]}}"#,
+        ring.join(", ")
+    );
+    for doc in [
+        text.clone(),
+        text.replace(
+            r#""type": "Polygon","#,
+            r#""type": "Polygon", "crs": {"type": "name", "properties": {"name": "urn:ogc:def:crs:OGC:1.3:CRS84"}},"#,
+        ),
+    ] {
+        std::fs::write(&path, &doc).unwrap();
+        let mask = StableMask::load(&path, &target()).unwrap();
+        let lookup = mask.lookup(&target().finest, 128, 128);
+        let stable = (0..128)
+            .flat_map(|r| (0..128).map(move |c| (c, r)))
+            .filter(|&(c, r)| lookup.is_stable(c, r))
+            .count();
+        assert_eq!(stable, 64 * 128, "{doc}");
+        assert!(lookup.is_stable(63, 0) && !lookup.is_stable(64, 0));
+    }
+    let local = MaskTarget {
+        crs: Some(epsg_crs(2154)),
+        ..target()
+    };
+    std::fs::write(
+        &path,
+        text.replace(
+            r#""type": "Polygon","#,
+            r#""type": "Polygon", "crs": {"properties": {"name": "EPSG:4326"}},"#,
+        ),
+    )
+    .unwrap();
+    let err = StableMask::load(&path, &local).unwrap_err().to_string();
+    assert!(
+        err.contains("degrees.geojson") && err.contains("is not a UTM zone"),
+        "{err}"
+    );
+}
+
+/// A GeoTIFF mask in degrees (a land cover map as delivered): each cell of
+/// the DSMs' lattice takes the mask cell its centre falls in. Stable west of
+/// the meridian through E 500032 (zone 17's central meridian is E 500000, so
+/// the meridian is a straight line there), in cells of 1e-5 degree (0.8 x
+/// 1.1 m): the boundary lands within a mask cell of E 500032.
+#[test]
+fn a_geotiff_mask_in_degrees_is_sampled_on_the_dsm_lattice() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("landcover.tif");
+    let tm = crate::geo::tm::Utm::from_epsg(32617).unwrap().projection();
+    let (lon0, lat1) = tm.inverse(499_980.0, 4_800_080.0);
+    let (split, _) = tm.inverse(500_032.0, 4_800_032.0);
+    let cell = 1e-5;
+    let (w, h) = (150u64, 100u64);
+    let gt = GeoTransform::north_up(lon0, lat1, cell, cell);
+    let data: Vec<f32> = (0..w * h)
+        .map(|k| {
+            let (lon, _) = gt.pixel_to_world((k % w) as f64 + 0.5, (k / w) as f64 + 0.5);
+            if lon < split {
+                1.0
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let crs = Crs {
+        epsg: Some(4326),
+        is_geographic: true,
+        geokeys: vec![1, 1, 0, 3, 1024, 0, 1, 2, 1025, 0, 1, 1, 2048, 0, 1, 4326],
+        ..Default::default()
+    };
+    let options = CogOptions {
+        geotransform: gt,
+        crs,
+        ..Default::default()
+    };
+    write_geotiff_f32(&path, w, h, options, &data).unwrap();
+    let mask = StableMask::load(&path, &target()).unwrap();
+    assert_eq!(mask.pyramid.levels[0].geotransform.gsd_x(), 0.5);
+    let lookup = mask.lookup(&target().finest, 128, 128);
+    for row in [0, 64, 127] {
+        let edge = (0..128).find(|&c| !lookup.is_stable(c, row)).unwrap();
+        // cell centres 500000.25 + 0.5 c; the boundary within 0.85 m of 500032
+        assert!(
+            (62..=66).contains(&edge),
+            "row {row}: first excluded cell {edge}"
+        );
+        assert!((edge..128).all(|c| !lookup.is_stable(c, row)));
+    }
+}
+
 #[test]
 fn masks_that_cannot_apply_are_refused() {
     let dir = tempfile::tempdir().unwrap();

@@ -204,7 +204,7 @@ impl WarpSource {
 }
 
 /// Where each output pixel's centre falls in the source.
-struct Mapping {
+pub(crate) struct Mapping {
     tm: TransverseMercator,
     /// The output grid (UTM) and its width.
     grid: GeoTransform,
@@ -217,10 +217,29 @@ struct Mapping {
 }
 
 impl Mapping {
+    /// The mapping of `grid` (`width` cells across, in `tm`'s metres) into a
+    /// raster in degrees placed by `source_gt`.
+    pub(crate) fn new(
+        tm: TransverseMercator,
+        grid: GeoTransform,
+        width: usize,
+        source_gt: GeoTransform,
+        source_width: u64,
+    ) -> Mapping {
+        let centre_lon = source_gt.pixel_to_world(0.5 * source_width as f64, 0.0).0;
+        Mapping {
+            tm,
+            grid,
+            width,
+            source_gt,
+            centre_lon,
+        }
+    }
+
     /// Source pixel positions (column, row; pixel centres at whole numbers)
     /// of output row `row`'s pixel centres: exact every [`KNOT_STEP`]
     /// columns, linear between.
-    fn positions(&self, row: u64, out: &mut Vec<(f64, f64)>) {
+    pub(crate) fn positions(&self, row: u64, out: &mut Vec<(f64, f64)>) {
         let (width, gt) = (self.width, &self.grid);
         let knots = width.div_ceil(KNOT_STEP) + 1;
         let knot: Vec<(f64, f64)> = (0..knots)

@@ -134,6 +134,29 @@ fn a_mask_excluding_a_changed_area_registers_the_pair_correctly() {
     std::fs::write(&geojson, doc.to_string()).unwrap();
     let by_polygon = pair_error(&p, &[&"--mask", &geojson]);
     assert!(by_polygon < 0.1, "with GeoJSON polygons: {by_polygon} m");
+    // the same polygons in longitude and latitude, as RFC 7946 and GIS
+    // exports have them (no "crs" member): put into the DSMs' UTM zone
+    let tm = dsmstream::geo::tm::Utm::from_epsg(32617)
+        .unwrap()
+        .projection();
+    let degrees: Vec<Vec<[f64; 2]>> = (polygon.iter())
+        .map(|ring| {
+            (ring.iter())
+                .map(|p| {
+                    let (lon, lat) = tm.inverse(p[0], p[1]);
+                    [lon, lat]
+                })
+                .collect()
+        })
+        .collect();
+    let geojson_deg = p.dir.path().join("stable_degrees.geojson");
+    let doc = json!({"type": "Polygon", "coordinates": degrees});
+    std::fs::write(&geojson_deg, doc.to_string()).unwrap();
+    let by_degrees = pair_error(&p, &[&"--mask", &geojson_deg]);
+    assert!(
+        (by_degrees - by_polygon).abs() < 0.01,
+        "with the polygons in degrees: {by_degrees} m, in metres {by_polygon} m"
+    );
     // a mask in another CRS: one line, exit 2, the file named
     let utm18 = p.dir.path().join("utm18.tif");
     write_tiff_mask(&utm18, area, p.raised, 32618);
