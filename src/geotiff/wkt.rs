@@ -266,6 +266,15 @@ pub fn crs_from_wkt(text: &str) -> Result<Crs, String> {
             .unwrap_or(USER_DEFINED);
         entries.push((key::GT_MODEL_TYPE, GeoKeyValue::Short(2)));
         entries.push((key::GEOGRAPHIC_TYPE, GeoKeyValue::Short(code)));
+        // ESRI's GEOGCS names no code: its datum, when one of the three
+        // whose longitudes and latitudes ingest puts into UTM
+        if let Some(datum) = (code == USER_DEFINED)
+            .then(|| datum_code(&horizontal))
+            .flatten()
+            .and_then(|c| u16::try_from(c).ok())
+        {
+            entries.push((2050, GeoKeyValue::Short(datum)));
+        }
     } else {
         return Err(format!(
             "CRS {} \"{}\" is not a projected CRS",
@@ -404,16 +413,7 @@ fn utm_code(crs: &Node, metres: f64) -> Option<u32> {
     let geographic = crs
         .child(&GEOGRAPHIC)
         .or_else(|| crs.child(&["BASEGEOGCRS", "BASEGEODCRS"]))?;
-    let datum = geographic.child(&["DATUM"])?;
-    let datum_code = match datum.epsg() {
-        Some(code) => code,
-        None => match normalised(datum.name()).trim_start_matches("d_") {
-            "wgs_1984" | "world_geodetic_system_1984" => 6326,
-            "north_american_1983" | "north_american_datum_1983" => 6269,
-            "etrs_1989" | "european_terrestrial_reference_system_1989" => 6258,
-            _ => return None,
-        },
-    };
+    let datum_code = datum_code(geographic)?;
     let mut entries = vec![
         (key::GT_MODEL_TYPE, GeoKeyValue::Short(1)),
         (key::PROJECTED_CS_TYPE, GeoKeyValue::Short(USER_DEFINED)),
@@ -427,6 +427,20 @@ fn utm_code(crs: &Node, metres: f64) -> Option<u32> {
             .map(|(id, v)| (id, GeoKeyValue::Doubles(vec![v]))),
     );
     identify_utm(&GeoKeys { entries })
+}
+
+/// The EPSG code of a geographic CRS's datum: its own, or by the name GDAL
+/// or ESRI give WGS 84, NAD83 and ETRS89.
+fn datum_code(geographic: &Node) -> Option<u32> {
+    let datum = geographic.child(&["DATUM"])?;
+    datum
+        .epsg()
+        .or_else(|| match normalised(datum.name()).trim_start_matches("d_") {
+            "wgs_1984" | "world_geodetic_system_1984" => Some(6326),
+            "north_american_1983" | "north_american_datum_1983" => Some(6269),
+            "etrs_1989" | "european_terrestrial_reference_system_1989" => Some(6258),
+            _ => None,
+        })
 }
 
 /// The vertical CRS's code and unit keys.
@@ -532,6 +546,17 @@ mod tests {
             (geographic.epsg, geographic.is_geographic),
             (Some(4326), true)
         );
+        // ESRI's WGS 84 names no code: its datum, by name, is what ingest
+        // needs to put it into UTM; an unknown datum stays unknown
+        let esri = r#"GEOGCS["GCS_WGS_1984",DATUM["D_WGS_1984",SPHEROID["WGS_1984",6378137.0,298.257223563]],PRIMEM["Greenwich",0.0],UNIT["Degree",0.0174532925199433]]"#;
+        let esri = crs_from_wkt(esri).unwrap();
+        assert!(esri.is_geographic && esri.epsg.is_none());
+        assert_eq!(
+            crate::geotiff::equivalent::geographic_datum(&esri),
+            Some(crate::geo::tm::Datum::Wgs84)
+        );
+        let ed50 = crs_from_wkt(r#"GEOGCS["GCS_European_1950",DATUM["D_European_1950",SPHEROID["International_1924",6378388.0,297.0]],PRIMEM["Greenwich",0.0],UNIT["Degree",0.0174532925199433]]"#).unwrap();
+        assert_eq!(crate::geotiff::equivalent::geographic_datum(&ed50), None);
         // an ESRI CRS that is no UTM zone has no code to compare by
         let lambert = ESRI_UTM17.replace("Transverse_Mercator", "Lambert_Conformal_Conic");
         assert!(crs_from_wkt(&lambert)

@@ -174,6 +174,17 @@ fn a_dsm_in_degrees_is_put_into_the_collections_utm_zone() {
         table.contains("put into UTM at ingest: srtm_ref (from EPSG:4326 at 72 m)"),
         "{table}"
     );
+    // degrees named only by an ESRI .prj beside a world file (no code: its
+    // datum by name)
+    let side = fixtures().join("geotiff/wf_deg_srtm.tif");
+    let out = ingest(&[&side], &store, &[]);
+    assert_ok(&out);
+    let said = text(&out.stdout);
+    assert!(
+        said.contains("georeferenced by wf_deg_srtm.tfw, wf_deg_srtm.prj; reprojected from")
+            && said.contains("to EPSG:32637, UTM 37N (WGS 84) at 72 m"),
+        "{said}"
+    );
     // unchanged, skipped: the line still says where it came from
     let again = text(&ingest(&[&degrees], &store, &[]).stdout);
     assert!(

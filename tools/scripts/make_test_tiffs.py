@@ -267,7 +267,10 @@ and sum, and 100 sampled pixels). Data: a synthetic 67 x 45 height field with
 no-data holes, stored in every sample type, layout and compression the reader
 supports; `bad_*` and a few variants are patched GDAL files (see the script).
 `wf_real_xdem.*` is xdem-data's Svalbard crop of ../real/xdem_gdal (its LICENSE
-applies) rewritten with its georeferencing in a world file and an ESRI `.prj`.
+applies) rewritten with its georeferencing in a world file and an ESRI `.prj`;
+`wf_deg_srtm.*` a 160 x 160 crop of demcompare's SRTM tile in degrees
+(../real/demcompare_srtm, its LICENSE applies), likewise, its `.prj` ESRI's WGS 84
+without a code (GDAL's GeoTIFF driver ignores it: the record's CRS is ours).
 The Rust tests are in src/geotiff/reader/tests.rs.
 """
 
@@ -494,6 +497,27 @@ def main():
         f.write(ds.crs.to_wkt(version="WKT1_ESRI"))
     good.append(expect_good(name, {"epsg": 25833, "side_files": ["wf_real_xdem.tfw",
                                                                  "wf_real_xdem.prj"]}))
+
+    # A DSM in degrees georeferenced by side files only: a 160 x 160 crop of
+    # demcompare's SRTM tile (../real/demcompare_srtm, its LICENSE applies) as
+    # BASELINE + .tfw, its CRS in an ESRI .prj (GEOGCS WGS 84, no code), which
+    # GDAL's GeoTIFF driver ignores and ingest puts into UTM.
+    src = os.path.join(ROOT, "fixtures/real/demcompare_srtm/srtm_ref.tif")
+    name = "wf_deg_srtm.tif"
+    with rasterio.open(src) as ds:
+        window = rasterio.windows.Window(400, 400, 160, 160)
+        profile = ds.profile.copy()
+        profile.update(width=160, height=160, transform=ds.window_transform(window),
+                       PROFILE="BASELINE", TFW="YES", compress="deflate")
+        profile.pop("crs", None)
+        profile.pop("nodata", None)
+        with rasterio.open(os.path.join(OUT, name), "w", **profile) as out:
+            out.write(ds.read(1, window=window), 1)
+    with open(os.path.join(OUT, "wf_deg_srtm.prj"), "w") as f:
+        f.write('GEOGCS["GCS_WGS_1984",DATUM["D_WGS_1984",SPHEROID["WGS_1984",6378137.0,'
+                '298.257223563]],PRIMEM["Greenwich",0.0],UNIT["Degree",0.0174532925199433]]')
+    good.append(expect_good(name, {"epsg": None, "is_geographic": True,
+                                   "side_files": ["wf_deg_srtm.tfw", "wf_deg_srtm.prj"]}))
 
     # ModelTransformation only: GDAL writes one for a rotated transform; patch it north-up.
     rot = Affine(0.5, 0.1, 630000.0, 0.1, -0.5, 4830000.0)
