@@ -86,6 +86,13 @@ pub(super) fn choose_zone(
         lat = (lat.0.min(b[1]), lat.1.max(b[3]));
     }
     let Some(datum) = datum else {
+        if let Some(z) = forced {
+            let hemisphere = if z.north { 'N' } else { 'S' };
+            tracing::warn!(
+                "--utm-zone {}{hemisphere} has no effect: no DSM to ingest is in longitude and latitude",
+                z.zone
+            );
+        }
         return Ok(None);
     };
     if let Some(ZoneChoice { zone, north }) = forced {

@@ -230,6 +230,18 @@ fn a_dsm_in_degrees_is_put_into_the_collections_utm_zone() {
         "its footprint (longitude 100.0000 to 100.0267",
     );
     assert_eq!(snapshot(&store), before);
+    // a zone for inputs that are not in degrees is said to do nothing
+    let metres = ingest(
+        &[&fixture("demcompare_srtm/srtm_ref_utm.tif")],
+        &tmp.path().join("metres.zarr"),
+        &["--utm-zone", "38N"],
+    );
+    assert_ok(&metres);
+    assert!(
+        text(&metres.stderr).contains("--utm-zone 38N has no effect"),
+        "{}",
+        text(&metres.stderr)
+    );
     let bad_zone = ingest(&[&degrees], &other, &["--utm-zone", "61N"]);
     assert_eq!(bad_zone.status.code(), Some(2));
     assert!(text(&bad_zone.stderr).contains("not a UTM zone: \"61N\""));
