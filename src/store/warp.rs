@@ -192,13 +192,7 @@ impl WarpSource {
             crs,
             ..src.clone()
         };
-        let mapping = Mapping {
-            tm,
-            grid,
-            width: width as usize,
-            source_gt: gt,
-            centre_lon,
-        };
+        let mapping = Mapping::new(tm, grid, width as usize, gt, src.width);
         Ok(WarpSource {
             inner,
             raster,
