@@ -42,6 +42,9 @@ pub enum EvalError {
     /// The reference GeoTIFF could not be read.
     #[error(transparent)]
     Reference(#[from] GeoTiffError),
+    /// The reference raster could not be read (a GeoTIFF, VRT or HGT tile).
+    #[error(transparent)]
+    Source(#[from] crate::store::source::SourceError),
     #[error("thread pool: {0}")]
     ThreadPool(#[from] rayon::ThreadPoolBuildError),
 }
@@ -53,6 +56,7 @@ impl EvalError {
             EvalError::Input(_) => true,
             EvalError::Store(e) => e.is_bad_input(),
             EvalError::Reference(e) => e.is_bad_input(),
+            EvalError::Source(e) => e.bad_input,
             EvalError::ThreadPool(_) => false,
         }
     }

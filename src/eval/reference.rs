@@ -1,5 +1,6 @@
-//! Agreement with an independent reference: a GeoTIFF DSM (sampled at its pixel
-//! centres) or a lidar point cloud (LAS/LAZ; point-to-surface). At each sample
+//! Agreement with an independent reference: a raster DSM (a GeoTIFF, a VRT
+//! mosaic or an SRTM HGT tile, sampled at its pixel centres) or a lidar point
+//! cloud (LAS/LAZ; point-to-surface). At each sample
 //! dh = fused(x, y) - z_reference, where fused is the per-pixel median of the
 //! corrected heights (see [`super::surfaces`]), before and after the poses.
 //!
@@ -18,14 +19,13 @@ use super::surfaces::{Placement, Surfaces};
 use super::{EvalConfig, EvalError};
 use crate::cache::ChunkCache;
 use crate::geo::Bounds;
-use crate::geotiff::reader::GeoTiffReader;
 use crate::store::Store;
 
 /// Figures against the reference.
 #[derive(Clone, Debug, Serialize)]
 pub struct ReferenceEval {
     pub path: PathBuf,
-    /// "geotiff" or "las".
+    /// "geotiff", "vrt", "hgt" or "las".
     pub kind: String,
     /// Reference samples read (pixels at the stride, or kept points).
     pub reference_samples: u64,
@@ -52,7 +52,8 @@ pub struct ReferenceOutcome {
     pub samples: Vec<DiffSample>,
 }
 
-/// Evaluate the fused surface against the reference at `path` (.tif/.tiff or .las/.laz).
+/// Evaluate the fused surface against the reference at `path` (.tif/.tiff,
+/// .vrt, .hgt/.zip or .las/.laz).
 pub fn eval_reference(
     store: &Store,
     cache: &ChunkCache,
@@ -68,20 +69,23 @@ pub fn eval_reference(
         .unwrap_or_default();
     let store_bounds = coverage(before, after);
     let (kind, points, notes) = match ext.as_str() {
-        "tif" | "tiff" => {
+        "tif" | "tiff" | "vrt" | "hgt" | "zip" => {
             let (points, notes) = raster_points(store, path, config, store_bounds)?;
-            ("geotiff", points, notes)
+            let kind = match ext.as_str() {
+                "tif" | "tiff" => "geotiff",
+                "vrt" => "vrt",
+                _ => "hgt",
+            };
+            (kind, points, notes)
         }
         "las" | "laz" => {
             let s = LasSamples::read(store, path, config, store_bounds)?;
             ("las", s.points, s.notes)
         }
-        _ => {
-            return Err(EvalError::Input(format!(
-                "{}: unknown reference type (expected .tif, .tiff, .las or .laz)",
-                path.display()
-            )))
-        }
+        _ => return Err(EvalError::Input(format!(
+            "{}: unknown reference type (expected .tif, .tiff, .vrt, .hgt, .hgt.zip, .las or .laz)",
+            path.display()
+        ))),
     };
     let samples = pool.install(|| {
         points
@@ -162,8 +166,8 @@ fn raster_points(
     config: &EvalConfig,
     store_bounds: Bounds,
 ) -> Result<(Vec<[f64; 3]>, Vec<String>), EvalError> {
-    let mut reader = GeoTiffReader::open(path)?;
-    let info = reader.info().clone();
+    let mut source = crate::store::vrt::open_input(path)?;
+    let info = source.raster().clone();
     let gt = info.geotransform;
     // a reference in longitude and latitude (SRTM, Copernicus) is projected
     // point by point into a store in a UTM zone on its datum
@@ -203,7 +207,7 @@ fn raster_points(
     let mut points = Vec::new();
     let mut row = Vec::new();
     for r in (0..info.height).step_by(stride as usize) {
-        reader.read_rows_into(r, 1, &mut row)?;
+        source.read_rows_into(r, 1, &mut row)?;
         for c in (0..info.width).step_by(stride as usize) {
             let z = row[c as usize];
             if !z.is_nan() {

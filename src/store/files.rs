@@ -36,8 +36,9 @@ pub struct InputFile {
     pub path: PathBuf,
 }
 
-/// Files named on the command line plus the `*.tif` / `*.tiff` files directly
-/// inside named directories (sorted). Errors are one line naming the path.
+/// Files named on the command line plus the `*.tif` / `*.tiff` files and
+/// SRTM tiles (`*.hgt`, `*.hgt.zip`) directly inside named directories
+/// (sorted). Errors are one line naming the path.
 pub fn expand_inputs(inputs: &[PathBuf]) -> Result<Vec<InputFile>, String> {
     let mut files = Vec::new();
     for input in inputs {
@@ -46,11 +47,11 @@ pub fn expand_inputs(inputs: &[PathBuf]) -> Result<Vec<InputFile>, String> {
             let mut found: Vec<PathBuf> = std::fs::read_dir(input)
                 .map_err(|e| format!("{}: {e}", input.display()))?
                 .filter_map(|e| e.ok().map(|e| e.path()))
-                .filter(|p| p.is_file() && is_tiff_name(p))
+                .filter(|p| p.is_file() && is_input_name(p))
                 .collect();
             if found.is_empty() {
                 return Err(format!(
-                    "{}: no .tif or .tiff files in this directory",
+                    "{}: no .tif, .tiff, .hgt or .hgt.zip files in this directory",
                     input.display()
                 ));
             }
@@ -64,10 +65,15 @@ pub fn expand_inputs(inputs: &[PathBuf]) -> Result<Vec<InputFile>, String> {
     let mut out = Vec::with_capacity(files.len());
     for file in files {
         let path = std::fs::canonicalize(&file).map_err(|e| format!("{}: {e}", file.display()))?;
-        let id = file
-            .file_stem()
-            .map(|s| s.to_string_lossy().into_owned())
-            .unwrap_or_default();
+        let name = file.file_name().map(|s| s.to_string_lossy().into_owned());
+        let id = match name {
+            Some(name) if name.to_ascii_lowercase().ends_with(".zip") => {
+                super::hgt::id_of_zip(&name)
+            }
+            _ => (file.file_stem())
+                .map(|s| s.to_string_lossy().into_owned())
+                .unwrap_or_default(),
+        };
         check_id(&id, &file)?;
         if let Some(other) = seen.get(&id) {
             if *other == path {
@@ -85,10 +91,13 @@ pub fn expand_inputs(inputs: &[PathBuf]) -> Result<Vec<InputFile>, String> {
     Ok(out)
 }
 
-fn is_tiff_name(p: &Path) -> bool {
-    p.extension()
-        .map(|e| e.eq_ignore_ascii_case("tif") || e.eq_ignore_ascii_case("tiff"))
-        .unwrap_or(false)
+fn is_input_name(p: &Path) -> bool {
+    let name = (p.file_name())
+        .map(|n| n.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    [".tif", ".tiff", ".hgt", ".hgt.zip"]
+        .iter()
+        .any(|tail| name.ends_with(tail))
 }
 
 /// An id must be usable as a Zarr node name and not look like our temporaries.

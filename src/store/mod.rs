@@ -21,6 +21,7 @@ mod commit;
 mod files;
 pub mod geo_attrs;
 pub mod grid;
+pub mod hgt;
 pub mod ingest;
 pub mod lock;
 mod mean2x2;

@@ -27,13 +27,16 @@ use spec::{DatasetSpec, SourceSpec};
 /// Relative tolerance on pixel sizes (VRT text vs the sources' tags).
 const GSD_TOLERANCE: f64 = 1e-6;
 
-/// Opens `*.vrt` as a [`VrtSource`], anything else as a GeoTIFF.
+/// Opens `*.vrt` as a [`VrtSource`], SRTM tiles (`*.hgt`, `*.zip`) as an
+/// [`HgtSource`](super::hgt::HgtSource), anything else as a GeoTIFF.
 pub fn open_input(path: &Path) -> Result<Box<dyn RowSource>, SourceError> {
     let is_vrt = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("vrt"));
     if is_vrt {
         Ok(Box::new(VrtSource::open(path)?))
+    } else if super::hgt::is_hgt_path(path) {
+        Ok(Box::new(super::hgt::HgtSource::open(path)?))
     } else {
         open_geotiff(path)
     }

@@ -626,3 +626,97 @@ fn info_on_a_non_store_is_exit_2() {
     assert_eq!(out.status.code(), Some(2));
     assert!(text(&out.stderr).contains("not a dsmstream store"));
 }
+
+/// SRTM tiles as delivered: a zipped HGT tile (fixtures/hgt, real SRTM
+/// heights) and the same tile unzipped, named or found in a folder, are put
+/// into UTM like any DSM in degrees and give the same DSM; a truncated
+/// download, a tile its name does not place and an archive that names
+/// another tile are refused by name, the store untouched.
+#[test]
+fn srtm_hgt_tiles_plain_and_zipped_are_ingested() {
+    let tmp = tempfile::tempdir().unwrap();
+    let zipped = fixtures().join("hgt/N39E040.SRTMGL3.hgt.zip");
+    let store = tmp.path().join("h.zarr");
+    let out = ingest(&[&fixtures().join("hgt")], &store, &[]);
+    assert_ok(&out);
+    let said = text(&out.stdout);
+    assert!(
+        said.contains("ingested N39E040.SRTMGL3: 1222 x 1563 px")
+            && said.contains("reprojected from EPSG:4326 to EPSG:32637, UTM 37N (WGS 84) at 72 m"),
+        "{said}"
+    );
+    // the tile unzipped (as `unzip` leaves it), beside it in the store
+    let bytes = std::fs::read(&zipped).unwrap();
+    let plain = tmp.path().join("N39E040.hgt");
+    std::fs::write(&plain, unzip_one(&bytes)).unwrap();
+    assert_ok(&ingest(&[&plain], &store, &[]));
+    let info = dsmstream(&["info", &store.display().to_string(), "--json"]);
+    let catalog: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
+    let dsms = catalog["dsms"].as_array().unwrap();
+    let [a, b] = [dsms[0].clone(), dsms[1].clone()];
+    let keys = [
+        "geotransform",
+        "width",
+        "height",
+        "crs",
+        "valid_count",
+        "height_stats",
+    ];
+    for key in keys {
+        assert_eq!(a[key], b[key], "{key}: {a} / {b}");
+    }
+    assert_eq!(a["source_dtype"], "Int16");
+    assert!(a["valid_count"].as_u64().unwrap() > 300_000, "{a}");
+
+    let before = snapshot(&store);
+    let truncated = tmp.path().join("N39E041.hgt");
+    std::fs::write(&truncated, &unzip_one(&bytes)[..1_000_000]).unwrap();
+    let out = ingest(&[&truncated], &store, &[]);
+    assert_refusal(
+        &out,
+        "N39E041.hgt",
+        "1000000 bytes is not an SRTM HGT tile (truncated?)",
+    );
+    let unnamed = tmp.path().join("dem.hgt");
+    std::fs::copy(&plain, &unnamed).unwrap();
+    let out = ingest(&[&unnamed], &store, &[]);
+    assert_refusal(
+        &out,
+        "dem.hgt",
+        "name must start with its tile, as N39E040.hgt",
+    );
+    let renamed = tmp.path().join("N38E040.hgt.zip");
+    std::fs::copy(&zipped, &renamed).unwrap();
+    let out = ingest(&[&renamed], &store, &[]);
+    assert_refusal(
+        &out,
+        "N38E040.hgt.zip",
+        "name says N38E040 but it holds N39E040.hgt",
+    );
+    let cut = tmp.path().join("N39E040.SRTMGL1.hgt.zip");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let out = ingest(&[&cut], &store, &[]);
+    assert_refusal(
+        &out,
+        "N39E040.SRTMGL1.hgt.zip",
+        "not a zip archive, or truncated",
+    );
+    assert_eq!(snapshot(&store), before);
+}
+
+/// The one member of a zip archive of one Deflate member, inflated by hand
+/// (the test does not trust the reader under test).
+fn unzip_one(archive: &[u8]) -> Vec<u8> {
+    use std::io::Read;
+    let u16_at = |at: usize| u16::from_le_bytes([archive[at], archive[at + 1]]) as usize;
+    let u32_at = |at: usize| u32::from_le_bytes(archive[at..at + 4].try_into().unwrap()) as usize;
+    assert_eq!(u32_at(0), 0x0403_4b50, "a local header first");
+    assert_eq!(u16_at(8), 8, "Deflate");
+    let start = 30 + u16_at(26) + u16_at(28);
+    let mut out = Vec::new();
+    flate2::read::DeflateDecoder::new(&archive[start..start + u32_at(18)])
+        .read_to_end(&mut out)
+        .unwrap();
+    assert_eq!(out.len(), u32_at(22));
+    out
+}

@@ -288,7 +288,10 @@ fn a_failed_demo_removes_its_temporary_folder() {
         .unwrap();
     let err = text(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "{err}");
-    assert!(err.contains("no .tif or .tiff files"), "{err}");
+    assert!(
+        err.contains("no .tif, .tiff, .hgt or .hgt.zip files"),
+        "{err}"
+    );
     assert_eq!(demo_leftovers(tmp.path()), Vec::<String>::new());
 }
 

@@ -1,0 +1,187 @@
+use super::*;
+
+/// A 1201 x 1201 tile whose sample (row, col) is `row - col`, with voids
+/// where both are multiples of 100.
+fn tile_bytes() -> Vec<u8> {
+    let mut out = Vec::with_capacity(1201 * 1201 * 2);
+    for row in 0..1201i32 {
+        for col in 0..1201i32 {
+            let h = if row % 100 == 0 && col % 100 == 0 {
+                VOID
+            } else {
+                (row - col) as i16
+            };
+            out.extend(h.to_be_bytes());
+        }
+    }
+    out
+}
+
+fn read_all(source: &mut HgtSource) -> Vec<f32> {
+    let (mut all, mut band) = (Vec::new(), Vec::new());
+    let mut row0 = 0;
+    while row0 < source.raster().height {
+        let rows = 37.min(source.raster().height - row0);
+        source.read_rows_into(row0, rows, &mut band).unwrap();
+        all.extend_from_slice(&band);
+        row0 += rows;
+    }
+    all
+}
+
+#[test]
+fn tiles_are_named_as_gdal_names_them() {
+    let cases = [
+        ("N39E040.hgt", Some((39, 40))),
+        ("s12w077.SRTMGL1.hgt", Some((-12, -77))),
+        ("N00W180.hgt", Some((0, -180))),
+        ("S90E000", Some((-90, 0))),
+        ("N39E040x.hgt", None),
+        ("N39E04.hgt", None),
+        ("foo.hgt", None),
+        ("N90E000.hgt", None),
+        ("N39E181.hgt", None),
+        ("X39E040.hgt", None),
+    ];
+    for (name, want) in cases {
+        let got = Tile::of_name(name).map(|t| (t.lat, t.lon));
+        assert_eq!(got, want, "{name}");
+        if let Some(t) = Tile::of_name(name) {
+            assert!(name.to_ascii_uppercase().starts_with(&t.name()), "{name}");
+        }
+    }
+    assert_eq!(id_of_zip("N39E040.SRTMGL1.hgt.zip"), "N39E040.SRTMGL1");
+    assert_eq!(id_of_zip("NASADEM_HGT_n39e040.ZIP"), "NASADEM_HGT_n39e040");
+}
+
+/// The transforms GDAL 3.10.3's SRTMHGT driver gives files of each size
+/// (rasterio's `transform`, printed to 17 digits).
+#[test]
+fn transforms_are_gdals() {
+    let cases = [
+        (
+            "N39E040",
+            1201,
+            1201,
+            39.999583333333334,
+            40.000416666666666,
+        ),
+        (
+            "S12W077",
+            3601,
+            3601,
+            -77.00013888888888,
+            -10.99986111111111,
+        ),
+        ("N61E010", 1801, 3601, 9.999722222222223, 62.00013888888889),
+        ("N39E041", 7201, 7201, 40.99993055555556, 40.00006944444444),
+    ];
+    for (name, cols, rows, west, north) in cases {
+        let gt = Tile::of_name(name).unwrap().geotransform(cols, rows);
+        let g = gt.0;
+        assert!((g[0] - west).abs() < 1e-12, "{name} west {}", g[0]);
+        assert!((g[3] - north).abs() < 1e-12, "{name} north {}", g[3]);
+        assert!((g[1] - 1.0 / (cols - 1) as f64).abs() < 1e-15, "{name}");
+        assert!((g[5] + 1.0 / (rows - 1) as f64).abs() < 1e-15, "{name}");
+        // the south-west sample sits on the tile's corner
+        let (x, y) = gt.pixel_to_world(0.5, rows as f64 - 0.5);
+        let t = Tile::of_name(name).unwrap();
+        assert!((x - f64::from(t.lon)).abs() < 1e-12 && (y - f64::from(t.lat)).abs() < 1e-12);
+    }
+}
+
+#[test]
+fn plain_and_zipped_tiles_read_the_same_heights() {
+    let dir = tempfile::tempdir().unwrap();
+    let bytes = tile_bytes();
+    let plain = dir.path().join("N39E040.hgt");
+    std::fs::write(&plain, &bytes).unwrap();
+    let zipped = dir.path().join("N39E040.SRTMGL3.hgt.zip");
+    std::fs::write(
+        &zipped,
+        zip::tests::archive(&[("N39E040.hgt", &bytes)], true),
+    )
+    .unwrap();
+    let nasadem = dir.path().join("NASADEM_HGT_n39e040.zip");
+    let archive = zip::tests::archive(&[("n39e040.hgt", &bytes), ("readme.txt", b"x")], false);
+    std::fs::write(&nasadem, archive).unwrap();
+
+    let mut first = HgtSource::open(&plain).unwrap();
+    let r = first.raster().clone();
+    assert_eq!((r.width, r.height, r.nodata), (1201, 1201, Some(-32768.0)));
+    assert_eq!(r.crs.epsg, Some(4326));
+    assert!(r.crs.is_geographic);
+    let want = read_all(&mut first);
+    assert_eq!(want[1], -1.0);
+    assert_eq!(want[1201 * 3 + 2], 1.0);
+    assert!(want[0].is_nan() && want[100 * 1201 + 200].is_nan());
+    assert_eq!(want.iter().filter(|h| h.is_nan()).count(), 13 * 13);
+    for path in [&zipped, &nasadem] {
+        let mut source = HgtSource::open(path).unwrap();
+        assert_eq!(
+            source.raster().geotransform,
+            r.geotransform,
+            "{}",
+            path.display()
+        );
+        let got = read_all(&mut source);
+        let same = got
+            .iter()
+            .zip(&want)
+            .all(|(a, b)| a.to_bits() == b.to_bits());
+        assert!(same && got.len() == want.len(), "{}", path.display());
+    }
+}
+
+#[test]
+fn bad_tiles_are_refused_naming_the_file_and_the_problem() {
+    let dir = tempfile::tempdir().unwrap();
+    let bytes = tile_bytes();
+    let write = |name: &str, data: &[u8]| {
+        let path = dir.path().join(name);
+        std::fs::write(&path, data).unwrap();
+        path
+    };
+    let cases = [
+        (
+            write("N39E040.hgt", &bytes[..bytes.len() - 1000]),
+            "not an SRTM HGT tile",
+        ),
+        (write("dem.hgt", &bytes), "name must start with its tile"),
+        (
+            write(
+                "N38E040.hgt.zip",
+                &zip::tests::archive(&[("N39E040.hgt", &bytes)], true),
+            ),
+            "name says N38E040 but it holds N39E040.hgt",
+        ),
+        (
+            write(
+                "dsm.zip",
+                &zip::tests::archive(&[("dsm.tif", b"II*\0")], true),
+            ),
+            "holds none (dsm.tif)",
+        ),
+        (
+            write(
+                "two.zip",
+                &zip::tests::archive(&[("N39E040.hgt", &bytes), ("N39E041.hgt", &bytes)], false),
+            ),
+            "holds several",
+        ),
+        (
+            write("N39E040.zip", &bytes[..5000]),
+            "not a zip archive, or truncated",
+        ),
+    ];
+    for (path, want) in cases {
+        let err = HgtSource::open(&path).err().expect("refused");
+        assert!(err.bad_input, "{}", err.message);
+        assert!(
+            err.message.starts_with(&path.display().to_string()),
+            "{}",
+            err.message
+        );
+        assert!(err.message.contains(want), "{}", err.message);
+    }
+}
