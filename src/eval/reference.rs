@@ -82,10 +82,11 @@ pub fn eval_reference(
             let s = LasSamples::read(store, path, config, store_bounds)?;
             ("las", s.points, s.notes)
         }
-        _ => return Err(EvalError::Input(format!(
-            "{}: unknown reference type (expected .tif, .tiff, .vrt, .hgt, .hgt.zip, .las or .laz)",
-            path.display()
-        ))),
+        _ => {
+            let known = ".tif, .tiff, .vrt, .hgt, .hgt.zip, .las or .laz";
+            let why = format!("unknown reference type (expected {known})");
+            return Err(EvalError::Input(format!("{}: {why}", path.display())));
+        }
     };
     let samples = pool.install(|| {
         points

@@ -12,6 +12,9 @@
 //! (1"), 1801 x 3601 (2" x 1", above 50 degrees in some products) and 7201 x
 //! 7201 (0.5"). Heights are SRTM's, above the EGM96 geoid; they are not
 //! changed. Ingest then puts the tile into a UTM zone like any DSM in degrees.
+//!
+//! A plain tile is read a band of rows at a time from the file; a zipped one
+//! is inflated as its rows are read (`zip`), so neither is held whole.
 
 use std::os::unix::fs::FileExt;
 use std::path::Path;
@@ -115,10 +118,72 @@ pub fn id_of_zip(name: &str) -> String {
 }
 
 /// Where the heights are: the file (read a band of rows at a time) or the
-/// member of a zip archive, inflated.
+/// member of a zip archive, inflated as it is read.
 enum Heights {
     File(std::fs::File),
-    Inflated(Vec<u8>),
+    Zip(Box<ZipRows>),
+}
+
+/// The rows of a zipped tile, streamed: the member is inflated front to back
+/// and the rows of the last request are held, so the overlapping, rising
+/// bands ingest asks for are inflated once. A request before the held rows
+/// starts the stream again.
+struct ZipRows {
+    member: zip::Member,
+    /// Opened at the first read (ingest opens every input to read its header).
+    stream: Option<zip::MemberReader<std::fs::File>>,
+    /// Rows `held_row0 .. next_row`, as stored.
+    held: Vec<u8>,
+    held_row0: u64,
+    /// The row the stream yields next.
+    next_row: u64,
+}
+
+impl ZipRows {
+    /// Rows `row0 .. row0 + rows` of `row_bytes` each, as stored.
+    fn rows(
+        &mut self,
+        path: &Path,
+        row0: u64,
+        rows: u64,
+        row_bytes: u64,
+    ) -> Result<&[u8], SourceError> {
+        if row0 < self.held_row0 {
+            (self.stream, self.next_row, self.held_row0) = (None, 0, 0);
+            self.held.clear();
+        }
+        let drop = row0.min(self.next_row) - self.held_row0;
+        self.held.drain(..(drop * row_bytes) as usize);
+        self.held_row0 += drop;
+        let stream = match &mut self.stream {
+            Some(s) => s,
+            None => {
+                let file = std::fs::File::open(path).map_err(|e| io(path, e))?;
+                let s = zip::open_member(file, &self.member).map_err(|e| bad(path, e))?;
+                self.stream.insert(s)
+            }
+        };
+        // rows before the request: inflated and let go, 64 at a time
+        let mut scratch = Vec::new();
+        while self.next_row < row0 {
+            let n = (row0 - self.next_row).min(64);
+            scratch.resize((n * row_bytes) as usize, 0);
+            stream.read_exact(&mut scratch).map_err(|e| bad(path, e))?;
+            self.next_row += n;
+            self.held_row0 = self.next_row;
+        }
+        if self.next_row < row0 + rows {
+            let at = self.held.len();
+            self.held
+                .resize(at + ((row0 + rows - self.next_row) * row_bytes) as usize, 0);
+            stream
+                .read_exact(&mut self.held[at..])
+                .map_err(|e| bad(path, e))?;
+            self.next_row = row0 + rows;
+        }
+        let start = ((row0 - self.held_row0) * row_bytes) as usize;
+        Ok(&self.held[start..start + (rows * row_bytes) as usize])
+    }
 }
 
 /// An HGT tile, plain or zipped.
@@ -172,10 +237,17 @@ impl HgtSource {
     pub fn open(path: &Path) -> Result<HgtSource, SourceError> {
         let name = file_name(path);
         let (tile, heights, bytes) = if name.to_ascii_lowercase().ends_with(".zip") {
-            let archive = std::fs::read(path).map_err(|e| io(path, e))?;
-            let (tile, bytes) = Self::member(path, &name, &archive)?;
-            let len = bytes.len() as u64;
-            (tile, Heights::Inflated(bytes), len)
+            let mut archive = std::fs::File::open(path).map_err(|e| io(path, e))?;
+            let (tile, member) = Self::member(path, &name, &mut archive)?;
+            let len = member.uncompressed;
+            let rows = ZipRows {
+                member,
+                stream: None,
+                held: Vec::new(),
+                held_row0: 0,
+                next_row: 0,
+            };
+            (tile, Heights::Zip(Box::new(rows)), len)
         } else {
             let tile = Tile::of_name(&name).ok_or_else(|| {
                 bad(
@@ -208,9 +280,13 @@ impl HgtSource {
         Ok(HgtSource { raster, heights })
     }
 
-    /// The tile and the inflated heights of the one `.hgt` member of a zip
-    /// archive; a tile the archive's own name gives must be the same.
-    fn member(path: &Path, name: &str, archive: &[u8]) -> Result<(Tile, Vec<u8>), SourceError> {
+    /// The tile and the one `.hgt` member of a zip archive, from its central
+    /// directory; a tile the archive's own name gives must be the same.
+    fn member(
+        path: &Path,
+        name: &str,
+        archive: &mut std::fs::File,
+    ) -> Result<(Tile, zip::Member), SourceError> {
         let members = zip::members(archive).map_err(|e| bad(path, e))?;
         let hgt: Vec<&zip::Member> = (members.iter())
             .filter(|m| m.name.to_ascii_lowercase().ends_with(".hgt"))
@@ -249,8 +325,7 @@ impl HgtSource {
                 ));
             }
         }
-        let bytes = zip::extract(archive, member).map_err(|e| bad(path, e))?;
-        Ok((tile, bytes))
+        Ok((tile, (*member).clone()))
     }
 }
 
@@ -297,12 +372,11 @@ impl RowSource for HgtSource {
             });
         }
         let row_bytes = self.raster.width * 2;
-        let (start, len) = ((row0 * row_bytes) as usize, (rows * row_bytes) as usize);
-        match &self.heights {
-            Heights::Inflated(bytes) => decode(&bytes[start..start + len], out),
+        match &mut self.heights {
+            Heights::Zip(zipped) => decode(zipped.rows(path, row0, rows, row_bytes)?, out),
             Heights::File(file) => {
-                let mut buf = vec![0u8; len];
-                file.read_exact_at(&mut buf, start as u64)
+                let mut buf = vec![0u8; (rows * row_bytes) as usize];
+                file.read_exact_at(&mut buf, row0 * row_bytes)
                     .map_err(|e| io(path, e))?;
                 decode(&buf, out);
             }

@@ -7,10 +7,11 @@ Builds full-size tiles of real heights: demcompare's SRTM crop (srtm_ref.tif,
 delivers them (`N39E040.SRTMGL3.hgt.zip`, `N39E040.SRTMGL1.hgt.zip`). For each:
   - GDAL's reading of the zip, written as a GeoTIFF (`rasterio.shutil.copy`,
     int16, Deflate): what a user would have had to do before;
-  - `dsmstream ingest` of the zip and of GDAL's GeoTIFF into two stores: wall s
-    and peak RSS MB (median of 3 runs each);
+  - `dsmstream ingest` of the zip, of the tile unzipped and of GDAL's GeoTIFF
+    into three stores: wall s and peak RSS MB (median of 3 runs each);
   - whether the two stores hold the same heights bit for bit (level 0, zarr)
-    and the same grid: dsmstream places and reads the tile as GDAL does.
+    and the same grid (and the unzipped tile's store the zip's): dsmstream
+    places and reads the tile as GDAL does.
 
 Usage: bench_hgt.py DSMSTREAM WORKDIR   (needs rasterio, zarr: the peers' venv)
 """
@@ -54,7 +55,9 @@ def tile(factor, work):
     path = os.path.join(work, f"N39E040.{product}.hgt.zip")
     with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
         z.writestr("N39E040.hgt", heights.tobytes())
-    return path
+    plain = os.path.join(work, "N39E040.hgt")
+    heights.tofile(plain)
+    return path, plain
 
 
 def ingest(exe, src, store):
@@ -78,23 +81,32 @@ def main():
     exe, work = sys.argv[1], sys.argv[2]
     os.makedirs(work, exist_ok=True)
     print("| tile | samples | zip MB | dsmstream ingest of the zip s | peak MB "
-          "| GDAL to GeoTIFF s | ingest of GDAL's GeoTIFF s | peak MB | same grid | same heights (bits) | valid px |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+          "| of the .hgt s | peak MB | GDAL to GeoTIFF s | ingest of GDAL's GeoTIFF s | peak MB "
+          "| same grid | same heights (bits) | valid px |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for factor in (1, 3):
-        z = tile(factor, work)
+        z, plain = tile(factor, work)
         t0 = time.perf_counter()
         gtiff = z.replace(".hgt.zip", ".gdal.tif")
         rasterio.shutil.copy(z, gtiff, driver="GTiff", compress="deflate", tiled=True)
         gdal_s = time.perf_counter() - t0
         ours_s, ours_mb = ingest(exe, z, os.path.join(work, "zip.zarr"))
+        hgt_s, hgt_mb = ingest(exe, plain, os.path.join(work, "hgt.zarr"))
         tif_s, tif_mb = ingest(exe, gtiff, os.path.join(work, "tif.zarr"))
         a, attrs_a = level0(os.path.join(work, "zip.zarr"))
         b, attrs_b = level0(os.path.join(work, "tif.zarr"))
-        same_grid = attrs_a["geotransform"] == attrs_b["geotransform"] and a.shape == b.shape
-        same = same_grid and np.array_equal(a.view(np.uint32), b.view(np.uint32))
+        c, attrs_c = level0(os.path.join(work, "hgt.zarr"))
+        same_grid = all(
+            attrs["geotransform"] == attrs_a["geotransform"] and x.shape == a.shape
+            for attrs, x in ((attrs_b, b), (attrs_c, c))
+        )
+        same = same_grid and all(
+            np.array_equal(a.view(np.uint32), x.view(np.uint32)) for x in (b, c)
+        )
         n = 1200 * factor + 1
         print(f"| {os.path.basename(z)} | {n} x {n} | {os.path.getsize(z) / 1e6:.1f} "
-              f"| {ours_s:.2f} | {ours_mb:.0f} | {gdal_s:.2f} | {tif_s:.2f} | {tif_mb:.0f} "
+              f"| {ours_s:.2f} | {ours_mb:.0f} | {hgt_s:.2f} | {hgt_mb:.0f} "
+              f"| {gdal_s:.2f} | {tif_s:.2f} | {tif_mb:.0f} "
               f"| {same_grid} | {same} | {int(np.isfinite(a).sum())} |")
 
 

@@ -185,3 +185,45 @@ fn bad_tiles_are_refused_naming_the_file_and_the_problem() {
         assert!(err.message.contains(want), "{}", err.message);
     }
 }
+
+/// The streamed zip answers any sequence of requests as the plain file does:
+/// rising overlapping bands (as the warp asks), jumps ahead, a step back
+/// (the stream starts again), one row, the last rows.
+#[test]
+fn zipped_rows_in_any_order_are_the_plain_rows() {
+    let dir = tempfile::tempdir().unwrap();
+    let bytes = tile_bytes();
+    let plain = dir.path().join("N39E040.hgt");
+    std::fs::write(&plain, &bytes).unwrap();
+    let zipped = dir.path().join("N39E040.hgt.zip");
+    std::fs::write(
+        &zipped,
+        zip::tests::archive(&[("N39E040.hgt", &bytes)], true),
+    )
+    .unwrap();
+    let mut a = HgtSource::open(&plain).unwrap();
+    let mut b = HgtSource::open(&zipped).unwrap();
+    let requests = [
+        (0, 40),
+        (30, 40),
+        (60, 5),
+        (500, 100),
+        (550, 1),
+        (100, 10),
+        (1190, 11),
+        (0, 1201),
+        (1200, 1),
+    ];
+    for (row0, rows) in requests {
+        let (want, got) = (
+            a.read_rows(row0, rows).unwrap(),
+            b.read_rows(row0, rows).unwrap(),
+        );
+        let same = want
+            .iter()
+            .zip(&got)
+            .all(|(x, y)| x.to_bits() == y.to_bits());
+        assert!(same && want.len() == got.len(), "rows {row0}..+{rows}");
+    }
+    assert!(b.read_rows(1200, 2).is_err(), "past the last row");
+}
