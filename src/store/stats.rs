@@ -57,11 +57,15 @@ impl HeightAccumulator {
             }
         };
         const BAND_ROWS: usize = 8;
-        let block = rows
+        // bands in parallel, merged in band order: rayon's reduce groups them
+        // as its threads happened to split the work, which moves the last
+        // bits of the sums from run to run
+        let bands: Vec<BlockSums> = rows
             .par_chunks_mut(width * BAND_ROWS)
             .enumerate()
             .map(|(b, band)| BlockSums::of_band(band, width, row0 + (b * BAND_ROWS) as u64, k))
-            .reduce(BlockSums::default, BlockSums::merge);
+            .collect();
+        let block = bands.into_iter().fold(BlockSums::default(), BlockSums::merge);
         if block.n == 0 {
             return;
         }
@@ -269,6 +273,33 @@ mod tests {
             s.std
         );
         assert!(std > 0.01, "the data vary");
+    }
+
+    /// The statistics are the same bits on any number of threads and in
+    /// any run (bands merged in order, not as rayon happened to split them).
+    #[test]
+    fn statistics_do_not_depend_on_the_threads() {
+        let width = 301;
+        let rows: Vec<f32> = (0..width * 517)
+            .map(|i| 1500.0 + ((i * 7919) % 1013) as f32 * 0.37)
+            .collect();
+        let stats = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| {
+                let mut acc = HeightAccumulator::default();
+                let mut copy = rows.clone();
+                acc.add_rows(&mut copy, width, 0);
+                let s = acc.height_stats().unwrap();
+                [s.mean.to_bits(), s.std.to_bits()]
+            })
+        };
+        let one = stats(1);
+        for threads in [2, 3, 8, 8, 8] {
+            assert_eq!(stats(threads), one, "{threads} threads");
+        }
     }
 
     #[test]
