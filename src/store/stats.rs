@@ -65,7 +65,9 @@ impl HeightAccumulator {
             .enumerate()
             .map(|(b, band)| BlockSums::of_band(band, width, row0 + (b * BAND_ROWS) as u64, k))
             .collect();
-        let block = bands.into_iter().fold(BlockSums::default(), BlockSums::merge);
+        let block = bands
+            .into_iter()
+            .fold(BlockSums::default(), BlockSums::merge);
         if block.n == 0 {
             return;
         }

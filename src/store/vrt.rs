@@ -1,23 +1,25 @@
-//! A GDAL VRT mosaic of GeoTIFFs as one ingest source (one DSM, its id the
-//! VRT's stem). Only what places GeoTIFF pixels unchanged is accepted: a
-//! `VRTDataset` (no `subClass`: no warping, no pansharpening) with a north-up
-//! `GeoTransform` and one `VRTRasterBand` of `SimpleSource`s or
-//! `ComplexSource`s, each band 1 of a GeoTIFF, with integer `SrcRect` and
-//! `DstRect` of equal size (no resampling), the VRT's pixel size and the same
-//! CRS as the other sources. Anything else (scaling, LUTs, masks, kernels,
-//! other drivers or `/vsi` paths, more bands) is refused with one line naming
-//! the file and the element.
+//! A GDAL VRT mosaic of GeoTIFFs or SRTM HGT tiles (`gdalbuildvrt`) as one
+//! ingest source (one DSM, its id the VRT's stem). Only what places source
+//! pixels unchanged is accepted: a `VRTDataset` (no `subClass`: no warping, no
+//! pansharpening) with a north-up `GeoTransform` and one `VRTRasterBand` of
+//! `SimpleSource`s or `ComplexSource`s, each band 1 of a GeoTIFF or an HGT
+//! tile, with integer `SrcRect` and `DstRect` of equal size (no resampling),
+//! the VRT's pixel size and the same CRS as the other sources. Anything else
+//! (scaling, LUTs, masks, kernels, other drivers or `/vsi` paths, more bands)
+//! is refused with one line naming the file and the element.
 //!
 //! Pixels are composed as GDAL does for sources without scaling: in file
 //! order, a later source's valid pixels overwrite earlier ones; no-data (the
 //! source's own, a ComplexSource's `NODATA`, the band's `NoDataValue`) never
 //! overwrites. Rows are read from each source only where its `DstRect` meets
-//! the requested rows, so memory stays a block row per source (each source
-//! is a [`GeoTiffSource`], which maps its file afresh as it streams).
+//! the requested rows, so memory stays a block row per source (a GeoTIFF is
+//! a [`GeoTiffSource`](super::source::GeoTiffSource), which maps its file
+//! afresh as it streams; an HGT tile a [`super::hgt::HgtSource`], zipped
+//! ones inflated as they are read).
 
 use std::path::{Path, PathBuf};
 
-use super::source::{open_geotiff, GeoTiffSource, RowSource, SourceError, SourceRaster};
+use super::source::{open_geotiff, RowSource, SourceError, SourceRaster};
 use crate::geo::{Crs, GeoTransform};
 
 mod spec;
@@ -54,7 +56,7 @@ pub struct PixelRect {
 /// One GeoTIFF placed in the mosaic.
 pub struct PlacedSource {
     pub path: PathBuf,
-    reader: GeoTiffSource,
+    reader: Box<dyn RowSource>,
     pub src: PixelRect,
     pub dst: PixelRect,
     /// A ComplexSource's `NODATA`: source pixels equal to it are no-data.
@@ -125,14 +127,20 @@ impl VrtSource {
     }
 }
 
-/// Open one source and check it against the VRT (GeoTIFF, pixel size, rects).
+/// Open one source and check it against the VRT (a GeoTIFF or an SRTM HGT
+/// tile, pixel size, rects).
 fn open_placed(
     vrt: &Path,
     spec: SourceSpec,
     gt: &GeoTransform,
 ) -> Result<PlacedSource, SourceError> {
     let name = spec.path.display().to_string();
-    let reader = GeoTiffSource::open(&spec.path).map_err(|e| SourceError {
+    let opened = if super::hgt::is_hgt_path(&spec.path) {
+        super::hgt::HgtSource::open(&spec.path).map(|s| Box::new(s) as Box<dyn RowSource>)
+    } else {
+        open_geotiff(&spec.path)
+    };
+    let reader = opened.map_err(|e| SourceError {
         message: format!("{}: <{}> {}", vrt.display(), spec.kind, e.message),
         bad_input: e.bad_input,
     })?;

@@ -1,17 +1,20 @@
 //! DSMs delivered in longitude and latitude (SRTM, Copernicus, ALOS, NASADEM:
-//! the global DSMs) are put into a UTM zone as they are read, so they register
-//! in metres with the rest of the collection.
+//! the global DSMs), and DSMs in a neighbouring UTM zone on the same datum (a
+//! collection across a zone boundary), are put into the collection's UTM zone
+//! as they are read, so they register in metres with the rest of it.
 //!
 //! One zone per run ([`choose_zone`]): the zone `--utm-zone` names, else the
-//! collection's when it is already in a UTM zone on the same datum, else the
-//! zone of the centre of the geographic inputs. Each geographic input becomes a
+//! collection's when it is already in a UTM zone on the same datum (the
+//! store's, else the first projected input's), else the zone of the centre of
+//! the geographic inputs. Each input in degrees or in another zone becomes a
 //! [`WarpSource`]: a [`RowSource`] that hands out rows of a north-up grid in
-//! the zone, with square pixels as fine as the source's finer axis there,
-//! snapped to multiples of the pixel, each pixel the bilinear interpolation
-//! of the source at its centre (GDAL's `-r bilinear`; where a neighbour is
-//! no-data the weights of the others are used, and a pixel whose nearest
-//! source pixel is no-data stays no-data). Heights are not changed: the
-//! vertical keys of the source are kept.
+//! the zone, with square pixels as fine as the source's finer axis there
+//! (degrees: two significant digits; another zone: its own pixel), snapped
+//! to multiples of the pixel, each pixel the bilinear interpolation of the
+//! source at its centre (GDAL's `-r bilinear`; where a neighbour is no-data
+//! the weights of the others are used, and a pixel whose nearest source
+//! pixel is no-data stays no-data). Heights are not changed: the vertical
+//! keys of the source are kept.
 
 use std::path::Path;
 
@@ -19,7 +22,7 @@ use rayon::prelude::*;
 
 use super::ingest::IngestError;
 use super::source::{RowSource, SourceError, SourceOpener, SourceRaster};
-use crate::geo::tm::{Datum, TransverseMercator, Utm};
+use crate::geo::tm::{TransverseMercator, Utm};
 use crate::geo::{Crs, GeoTransform};
 use crate::geotiff::equivalent::{code, geographic_datum};
 
@@ -56,9 +59,10 @@ impl ZoneChoice {
     }
 }
 
-/// The UTM zone this run puts its geographic inputs into, or `None` when no
-/// input is in longitude and latitude on WGS 84, NAD83 or ETRS89 (others are
-/// refused later by the header checks).
+/// The UTM zone this run puts its inputs in degrees and in other zones into,
+/// or `None` when no input needs one (none in longitude and latitude on WGS
+/// 84, NAD83 or ETRS89, and no collection zone for UTM inputs of other zones;
+/// others are refused later by the header checks).
 pub(super) fn choose_zone(
     collection: Option<&Crs>,
     forced: Option<ZoneChoice>,
@@ -66,7 +70,7 @@ pub(super) fn choose_zone(
     open: &SourceOpener,
 ) -> Result<Option<Utm>, IngestError> {
     let mut collection = collection.cloned();
-    let mut datum = None;
+    let (mut datum, mut zones) = (None, Vec::new());
     let (mut lon, mut lat) = (
         (f64::INFINITY, f64::NEG_INFINITY),
         (f64::INFINITY, f64::NEG_INFINITY),
@@ -75,8 +79,9 @@ pub(super) fn choose_zone(
         let source = open(path)?;
         let raster = source.raster();
         let Some(d) = geographic_datum(&raster.crs) else {
-            if !raster.crs.is_geographic && collection.is_none() {
-                collection = Some(raster.crs.clone());
+            if !raster.crs.is_geographic {
+                collection.get_or_insert_with(|| raster.crs.clone());
+                zones.extend(code(&raster.crs).and_then(Utm::from_epsg));
             }
             continue;
         };
@@ -85,30 +90,48 @@ pub(super) fn choose_zone(
         lon = (lon.0.min(b[0]), lon.1.max(b[2]));
         lat = (lat.0.min(b[1]), lat.1.max(b[3]));
     }
+    let collection_zone = (collection.as_ref())
+        .and_then(code)
+        .and_then(Utm::from_epsg);
     let Some(datum) = datum else {
-        if let Some(z) = forced {
+        // no input in degrees: a zone for the UTM inputs of other zones
+        let datum = collection_zone.or(zones.first().copied()).map(|u| u.datum);
+        let chosen = match (forced, datum) {
+            (Some(ZoneChoice { zone, north }), Some(datum)) => Some(Utm { datum, zone, north }),
+            _ => collection_zone,
+        };
+        let moves = |to: Utm| zones.iter().any(|u| u.datum == to.datum && *u != to);
+        if let Some(z) = forced.filter(|_| !chosen.is_some_and(moves)) {
             let hemisphere = if z.north { 'N' } else { 'S' };
             tracing::warn!(
-                "--utm-zone {}{hemisphere} has no effect: no DSM to ingest is in longitude and latitude",
+                "--utm-zone {}{hemisphere} has no effect: no DSM to ingest is in longitude and latitude or in another UTM zone",
                 z.zone
             );
         }
-        return Ok(None);
+        return Ok(chosen.filter(|&to| moves(to)));
     };
     if let Some(ZoneChoice { zone, north }) = forced {
         return Ok(Some(Utm { datum, zone, north }));
     }
-    let collection_zone = (collection.as_ref())
-        .and_then(code)
-        .and_then(Utm::from_epsg)
-        .filter(|u| u.datum == datum);
+    let collection_zone = collection_zone.filter(|u| u.datum == datum);
     Ok(Some(collection_zone.unwrap_or_else(|| {
         Utm::containing(datum, 0.5 * (lon.0 + lon.1), 0.5 * (lat.0 + lat.1))
     })))
 }
 
-/// `open`, with sources in longitude and latitude on `zone`'s datum put into
-/// `zone`; other sources as they are.
+/// The frame a source is put into `zone` from: longitude and latitude on the
+/// zone's datum, or another UTM zone on it; `None`: the source is read as it
+/// is (already in the zone, or in a CRS the header checks judge).
+fn source_frame(crs: &Crs, zone: Utm) -> Option<Frame> {
+    if geographic_datum(crs) == Some(zone.datum) {
+        return Some(Frame::Degrees);
+    }
+    let utm = code(crs).and_then(Utm::from_epsg)?;
+    (utm.datum == zone.datum && utm != zone).then(|| Frame::Zone(utm.projection()))
+}
+
+/// `open`, with sources in longitude and latitude, or in another UTM zone,
+/// on `zone`'s datum put into `zone`; other sources as they are.
 pub(super) fn open_in_zone(
     open: &SourceOpener,
     zone: Option<Utm>,
@@ -116,7 +139,7 @@ pub(super) fn open_in_zone(
 ) -> Result<Box<dyn RowSource>, SourceError> {
     let source = open(path)?;
     match zone {
-        Some(zone) if geographic_datum(&source.raster().crs) == Some(zone.datum) => {
+        Some(zone) if source_frame(&source.raster().crs, zone).is_some() => {
             Ok(Box::new(WarpSource::new(source, zone)?))
         }
         _ => Ok(source),
@@ -135,7 +158,35 @@ pub struct Warped {
     pub pixel_m: f64,
 }
 
-/// A source in longitude and latitude read as a grid in a UTM zone.
+/// The frame of a source's geotransform.
+#[derive(Clone, Debug)]
+pub(crate) enum Frame {
+    /// Longitude and latitude, degrees.
+    Degrees,
+    /// Easting and northing of another UTM zone (same datum), metres.
+    Zone(TransverseMercator),
+}
+
+impl Frame {
+    /// Longitude and latitude of a point of this frame.
+    fn to_lonlat(&self, x: f64, y: f64) -> (f64, f64) {
+        match self {
+            Frame::Degrees => (x, y),
+            Frame::Zone(tm) => tm.inverse(x, y),
+        }
+    }
+
+    /// This frame's coordinates of a longitude and latitude.
+    fn of_lonlat(&self, lon: f64, lat: f64) -> (f64, f64) {
+        match self {
+            Frame::Degrees => (lon, lat),
+            Frame::Zone(tm) => tm.forward(lon, lat),
+        }
+    }
+}
+
+/// A source in longitude and latitude, or in another UTM zone, read as a
+/// grid in a UTM zone.
 pub struct WarpSource {
     inner: Box<dyn RowSource>,
     raster: SourceRaster,
@@ -159,8 +210,15 @@ impl WarpSource {
                 zone.label()
             ))
         })?;
+        let frame = source_frame(&src.crs, zone).ok_or_else(|| {
+            bad(format!(
+                "CRS {} is neither longitude and latitude nor another UTM zone on {}",
+                src.crs.label(),
+                zone.datum.name()
+            ))
+        })?;
         let gt = src.geotransform;
-        let [lon0, lat0, lon1, lat1] = gt.bounds(src.width, src.height);
+        let [lon0, lat0, lon1, lat1] = lonlat_bounds(&frame, &gt, src.width, src.height);
         let meridian = -183.0 + 6.0 * f64::from(zone.zone);
         let centre_lon = 0.5 * (lon0 + lon1);
         let from_meridian =
@@ -179,7 +237,7 @@ impl WarpSource {
         let crs = crate::geotiff::geokeys::utm_crs(&zone, &src.crs)
             .ok_or_else(|| bad(format!("cannot describe {} as GeoTIFF keys", zone.label())))?;
         let tm = zone.projection();
-        let (grid, width, height) = output_grid(&tm, &gt, src.width, src.height, zone.datum);
+        let (grid, width, height) = output_grid(&tm, &frame, &gt, (src.width, src.height), zone);
         let warped = Warped {
             from: src.crs.label(),
             to: format!("EPSG:{code}, {}", zone.label()),
@@ -192,7 +250,8 @@ impl WarpSource {
             crs,
             ..src.clone()
         };
-        let mapping = Mapping::new(tm, grid, width as usize, gt, src.width);
+        let mapping =
+            Mapping::new(tm, grid, width as usize, gt, src.width).in_frame(frame, src.width);
         Ok(WarpSource {
             inner,
             raster,
@@ -215,11 +274,13 @@ pub(crate) struct Mapping {
     /// Longitude of the source's centre: inverse longitudes are taken within
     /// 180 degrees of it (a source in 0..360 longitudes).
     centre_lon: f64,
+    /// The frame of `source_gt`.
+    frame: Frame,
 }
 
 impl Mapping {
     /// The mapping of `grid` (`width` cells across, in `tm`'s metres) into a
-    /// raster in degrees placed by `source_gt`.
+    /// raster in degrees placed by `source_gt` (see [`Mapping::in_frame`]).
     pub(crate) fn new(
         tm: TransverseMercator,
         grid: GeoTransform,
@@ -234,7 +295,16 @@ impl Mapping {
             width,
             source_gt,
             centre_lon,
+            frame: Frame::Degrees,
         }
+    }
+
+    /// The same mapping into a raster whose `source_gt` is in `frame`.
+    fn in_frame(mut self, frame: Frame, source_width: u64) -> Mapping {
+        let (x, y) = (self.source_gt).pixel_to_world(0.5 * source_width as f64, 0.0);
+        self.centre_lon = frame.to_lonlat(x, y).0;
+        self.frame = frame;
+        self
     }
 
     /// Source pixel positions (column, row; pixel centres at whole numbers)
@@ -248,7 +318,8 @@ impl Mapping {
                 let (e, n) = gt.pixel_to_world((k * KNOT_STEP) as f64 + 0.5, row as f64 + 0.5);
                 let (lon, lat) = self.tm.inverse(e, n);
                 let lon = lon + 360.0 * ((self.centre_lon - lon) / 360.0).round();
-                let (u, v) = self.source_gt.world_to_pixel(lon, lat);
+                let (x, y) = self.frame.of_lonlat(lon, lat);
+                let (u, v) = self.source_gt.world_to_pixel(x, y);
                 (u - 0.5, v - 0.5)
             })
             .collect();
@@ -261,24 +332,86 @@ impl Mapping {
     }
 }
 
-/// The output grid of a source in longitude and latitude: square pixels of
-/// the source's finer axis at its centre (two significant digits), the
-/// projected footprint snapped outwards to multiples of the pixel.
+/// The output grid of a source in longitude and latitude, or in another UTM
+/// zone: square pixels of the source's finer axis at its centre (degrees: two
+/// significant digits; metres: the source's own), the projected footprint
+/// snapped outwards to multiples of the pixel.
 fn output_grid(
     tm: &TransverseMercator,
+    frame: &Frame,
     gt: &GeoTransform,
-    width: u64,
-    height: u64,
-    datum: Datum,
+    (width, height): (u64, u64),
+    zone: Utm,
 ) -> (GeoTransform, u64, u64) {
-    let [_, lat0, _, lat1] = gt.bounds(width, height);
-    let (per_lon, per_lat) = datum.ellipsoid().metres_per_degree(0.5 * (lat0 + lat1));
-    let pixel = round_to_two_digits((gt.gsd_x() * per_lon).min(gt.gsd_y() * per_lat));
-    let [e0, n0, e1, n1] = projected_bounds(tm, gt, width, height);
+    let pixel = match frame {
+        Frame::Degrees => {
+            let [_, lat0, _, lat1] = gt.bounds(width, height);
+            let per = zone
+                .datum
+                .ellipsoid()
+                .metres_per_degree(0.5 * (lat0 + lat1));
+            round_to_two_digits((gt.gsd_x() * per.0).min(gt.gsd_y() * per.1))
+        }
+        Frame::Zone(_) => gt.gsd_x().min(gt.gsd_y()),
+    };
+    let [e0, n0, e1, n1] = footprint_in(tm, frame, gt, width, height);
     let (x0, y1) = ((e0 / pixel).floor() * pixel, (n1 / pixel).ceil() * pixel);
     let w = ((e1 - x0) / pixel).ceil().max(1.0) as u64;
     let h = ((y1 - n0) / pixel).ceil().max(1.0) as u64;
     (GeoTransform::north_up(x0, y1, pixel, pixel), w, h)
+}
+
+/// The box of the longitudes and latitudes of a raster's footprint in
+/// `frame` (its edges at [`EDGE_POINTS`] points each).
+fn lonlat_bounds(frame: &Frame, gt: &GeoTransform, width: u64, height: u64) -> [f64; 4] {
+    match frame {
+        Frame::Degrees => gt.bounds(width, height),
+        Frame::Zone(_) => edge_box(gt, width, height, |x, y| frame.to_lonlat(x, y)),
+    }
+}
+
+/// The box of `f` over the edges of a raster's footprint ([`EDGE_POINTS`]
+/// points each).
+fn edge_box(
+    gt: &GeoTransform,
+    width: u64,
+    height: u64,
+    f: impl Fn(f64, f64) -> (f64, f64),
+) -> [f64; 4] {
+    let [x0, y0, x1, y1] = gt.bounds(width, height);
+    let mut b = [
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    ];
+    for i in 0..=EDGE_POINTS {
+        let t = i as f64 / EDGE_POINTS as f64;
+        let (x, y) = (x0 + t * (x1 - x0), y0 + t * (y1 - y0));
+        for (u, v) in [(x, y0), (x, y1), (x0, y), (x1, y)] {
+            let (p, q) = f(u, v);
+            b = [b[0].min(p), b[1].min(q), b[2].max(p), b[3].max(q)];
+        }
+    }
+    b
+}
+
+/// Points per edge at which footprints are projected.
+const EDGE_POINTS: usize = 64;
+
+/// The box (min E, min N, max E, max N) holding the projected footprint of a
+/// raster in `frame`.
+fn footprint_in(
+    tm: &TransverseMercator,
+    frame: &Frame,
+    gt: &GeoTransform,
+    width: u64,
+    height: u64,
+) -> [f64; 4] {
+    edge_box(gt, width, height, |x, y| {
+        let (lon, lat) = frame.to_lonlat(x, y);
+        tm.forward(lon, lat)
+    })
 }
 
 /// The box (min E, min N, max E, max N) holding the projected footprint of
@@ -289,23 +422,7 @@ pub fn projected_bounds(
     width: u64,
     height: u64,
 ) -> [f64; 4] {
-    let [lon0, lat0, lon1, lat1] = gt.bounds(width, height);
-    let (mut e0, mut n0, mut e1, mut n1) = (
-        f64::INFINITY,
-        f64::INFINITY,
-        f64::NEG_INFINITY,
-        f64::NEG_INFINITY,
-    );
-    const EDGE_POINTS: usize = 64;
-    for i in 0..=EDGE_POINTS {
-        let t = i as f64 / EDGE_POINTS as f64;
-        let (lon, lat) = (lon0 + t * (lon1 - lon0), lat0 + t * (lat1 - lat0));
-        for (x, y) in [(lon, lat0), (lon, lat1), (lon0, lat), (lon1, lat)] {
-            let (e, n) = tm.forward(x, y);
-            (e0, n0, e1, n1) = (e0.min(e), n0.min(n), e1.max(e), n1.max(n));
-        }
-    }
-    [e0, n0, e1, n1]
+    footprint_in(tm, &Frame::Degrees, gt, width, height)
 }
 
 /// The projection that puts a raster in longitude and latitude (`crs`) into
@@ -539,6 +656,66 @@ mod tests {
             .iter()
             .zip(&values)
             .all(|(a, b)| a.to_bits() == b.to_bits()));
+    }
+
+    /// A DSM in UTM 37N near the zone's eastern edge put into 38N (a
+    /// collection across the boundary): a plane in 37N's metres comes out as
+    /// that plane at each 38N pixel's own position (bilinear is exact on a
+    /// plane), at the source's own 30 m pixel, snapped.
+    #[test]
+    fn a_neighbouring_zone_is_put_into_the_zone_at_each_pixels_position() {
+        let (w, h, px) = (200u64, 150u64, 30.0);
+        let from = Utm::from_epsg(32637).unwrap();
+        let (e0, n1) = from.projection().forward(41.5, 39.7);
+        let (e0, n1) = ((e0 / px).round() * px, (n1 / px).round() * px);
+        let plane = |e: f64, n: f64| 1000.0 + 0.05 * (e - e0) - 0.03 * (n - n1);
+        let data = (0..h)
+            .flat_map(|r| (0..w).map(move |c| (r, c)))
+            .map(|(r, c)| plane(e0 + (c as f64 + 0.5) * px, n1 - (r as f64 + 0.5) * px) as f32)
+            .collect();
+        let crs = crate::geotiff::geokeys::crs_from_entries(vec![
+            (1024, crate::geotiff::geokeys::GeoKeyValue::Short(1)),
+            (3072, crate::geotiff::geokeys::GeoKeyValue::Short(32637)),
+        ])
+        .unwrap();
+        let mut source = geographic(e0, n1, px, w, h, data);
+        source.raster.crs = crs;
+        let to = Utm::from_epsg(32638).unwrap();
+        assert!(
+            source_frame(&source.raster.crs, from).is_none(),
+            "its own zone"
+        );
+        let mut warp = WarpSource::new(Box::new(source), to).unwrap();
+        let r = warp.raster().clone();
+        assert_eq!(r.crs.epsg, Some(32638));
+        assert_eq!(r.geotransform.gsd_x(), 30.0);
+        assert_eq!(r.geotransform.0[0] % 30.0, 0.0);
+        assert_eq!(warp.warped().unwrap().from, "EPSG:32637");
+        let values = warp.read_rows(0, r.height).unwrap();
+        let (tm_to, tm_from) = (to.projection(), from.projection());
+        let mut inside = 0;
+        for row in 0..r.height {
+            for col in 0..r.width {
+                let (e, n) = (r.geotransform).pixel_to_world(col as f64 + 0.5, row as f64 + 0.5);
+                let (lon, lat) = tm_to.inverse(e, n);
+                let (x, y) = tm_from.forward(lon, lat);
+                let (u, v) = ((x - e0) / px - 0.5, (n1 - y) / px - 0.5);
+                let z = values[(row * r.width + col) as usize];
+                if u > 0.0 && v > 0.0 && u < (w - 1) as f64 && v < (h - 1) as f64 {
+                    inside += 1;
+                    let want = plane(x, y);
+                    assert!(
+                        (f64::from(z) - want).abs() < 2e-3,
+                        "({col}, {row}): {z} / {want}"
+                    );
+                } else if u < -0.5 || v < -0.5 || u > w as f64 - 0.5 || v > h as f64 - 0.5 {
+                    assert!(z.is_nan(), "({col}, {row}) outside the source: {z}");
+                }
+            }
+        }
+        // the grid is turned by the two zones' convergences (1.6 and -2.2
+        // degrees): about 0.87 of the output box is inside
+        assert!(inside as u64 > r.width * r.height * 8 / 10, "{inside}");
     }
 
     #[test]

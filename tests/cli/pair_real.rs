@@ -331,3 +331,61 @@ fn a_zipped_srtm_tile_is_placed_by_its_name_and_registered() {
         );
     }
 }
+
+/// A collection across a UTM zone boundary: GDAL's UTM 37N twins of the
+/// pair, the reference put into 38N by `--utm-zone 38N`, then the moving one
+/// ingested into that store with no flag: it is put into 38N as it is read
+/// (its own 90 m pixel), and the pair finds the module's truth as 38N sees it
+/// (3 x 5 pixels of 3" at the tile centre, projected by the 38N of
+/// `geo::tm`) within the bounds and 3 sigmas of the tests above. Both come
+/// from GDAL's warp, whose y offset (docs/measurements.md, DSMs in longitude
+/// and latitude: 3.5 m when one side is GDAL's) cancels between them.
+#[test]
+fn a_dsm_in_the_neighbouring_utm_zone_is_put_into_the_collections_zone() {
+    use dsmstream::geo::tm::Utm;
+    let dir = tempfile::tempdir().unwrap();
+    let store = dir.path().join("z38.zarr");
+    let run = |path: PathBuf, extra: &[&str]| {
+        let out = bin()
+            .arg("ingest")
+            .arg(path)
+            .arg("--store")
+            .arg(&store)
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", text(&out.stderr));
+        text(&out.stdout)
+    };
+    run(fixture("srtm_ref_utm.tif"), &["--utm-zone", "38N"]);
+    let said = run(fixture("srtm_bs_utm.tif"), &[]);
+    assert!(
+        said.contains("reprojected from EPSG:32637 to EPSG:32638, UTM 38N (WGS 84) at 90 m"),
+        "{said}"
+    );
+    let (code, doc) = crate::util::pair_json(&store, "srtm_ref_utm", "srtm_bs_utm");
+    assert_eq!(code, Some(0), "{doc}");
+    let result = &doc["result"];
+    assert_eq!(result["status"], "converged", "{result}");
+    let m = |r: usize, c: usize| result["matrix_world"][r][c].as_f64().unwrap();
+    let tm = Utm::from_epsg(32638).unwrap().projection();
+    let (lon, lat) = (40.4175, 39.58125);
+    let (e, n) = tm.forward(lon, lat);
+    let (e1, n1) = tm.forward(lon + 3.0 / 1200.0, lat - 5.0 / 1200.0);
+    let centre = [e, n, 2000.0];
+    let truth = [e1 - e, n1 - n, 0.0];
+    let sigma = &result["sigma"]["shift_m"];
+    for k in 0..3 {
+        let moved = (0..3).map(|c| m(k, c) * centre[c]).sum::<f64>() + m(k, 3) - centre[k];
+        let (err, s) = ((moved - truth[k]).abs(), sigma[k].as_f64().unwrap());
+        eprintln!(
+            "axis {k}: found {moved:.2} m, truth {:.2} m, sigma {s:.2} m",
+            truth[k]
+        );
+        assert!(
+            err < [3.0, 2.0, 0.5][k] && err < 3.0 * s,
+            "axis {k}: found {moved:.2} m, truth {:.2} m, sigma {s:.2} m",
+            truth[k]
+        );
+    }
+}

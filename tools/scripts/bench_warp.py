@@ -4,8 +4,10 @@ as it reads) against GDAL's warp, side by side.
 
 For each source (demcompare's SRTM tile, 3" pixels, and the same tile resampled
 by GDAL to 1" and to 1/3", 9x and 81x the pixels, as Copernicus GLO-30 and a
-10 m national DSM in degrees would be), prints:
-  - dsmstream ingest of the degree file: wall s, peak RSS MB, output size;
+10 m national DSM in degrees would be; and GDAL's UTM 37N warp of the tile at
+90 m, and that resampled to 10 m, put into UTM 38N as a DSM across a zone
+boundary is), prints:
+  - dsmstream ingest of the source: wall s, peak RSS MB, output size;
   - GDAL (rasterio.warp.reproject, bilinear, to the same UTM grid, in memory)
     then dsmstream ingest of GDAL's UTM file: wall s each;
   - exactness: over 2,000 random valid output pixels, the largest difference
@@ -32,6 +34,7 @@ from rasterio.warp import reproject
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 SRTM = os.path.join(HERE, "../../fixtures/real/demcompare_srtm/srtm_ref.tif")
+SRTM_UTM = os.path.join(HERE, "../../fixtures/real/demcompare_srtm/srtm_ref_utm.tif")
 
 
 def timed(cmd):
@@ -47,9 +50,9 @@ def timed(cmd):
     return wall, rss_kb / 1024, out.stdout
 
 
-def upsampled(factor, path):
+def upsampled(factor, path, source=SRTM):
     """The SRTM tile at 1/factor of its pixel, bilinear (GDAL), Float32 tiled Deflate."""
-    with rasterio.open(SRTM) as src:
+    with rasterio.open(source) as src:
         data = src.read(1, out_shape=(src.height * factor, src.width * factor),
                         resampling=Resampling.bilinear, masked=True)
         profile = src.profile.copy()
@@ -63,21 +66,23 @@ def upsampled(factor, path):
         dst.write(data.filled(-32768.0).astype("float32"), 1)
 
 
-def exactness(store, name, src_path, gt):
-    """Largest |stored - exact bilinear at PROJ's position| over random valid pixels."""
+def exactness(store, name, src_path, gt, epsg):
+    """Largest |stored - exact bilinear at PROJ's position| over random valid pixels
+    (the store in EPSG:`epsg`)."""
     import zarr
     from rasterio.warp import transform
     ours = zarr.open_array(os.path.join(store, name, "0"), mode="r")[:]
     with rasterio.open(src_path) as s:
         z = s.read(1, masked=True).astype(float).filled(np.nan)
         st = s.transform
+        src_crs = s.crs
     rng = np.random.default_rng(1)
     rr, cc = np.nonzero(np.isfinite(ours))
     pick = rng.choice(len(rr), size=min(2000, len(rr)), replace=False)
     rr, cc = rr[pick], cc[pick]
     e = gt[0] + (cc + 0.5) * gt[1]
     n = gt[3] + (rr + 0.5) * gt[5]
-    lon, lat = transform("EPSG:32637", "EPSG:4326", e.tolist(), n.tolist())
+    lon, lat = transform(f"EPSG:{epsg}", src_crs, e.tolist(), n.tolist())
     u = (np.array(lon) - st.c) / st.a - 0.5
     v = (np.array(lat) - st.f) / st.e - 0.5
     i, j = np.floor(u).astype(int), np.floor(v).astype(int)
@@ -94,16 +99,18 @@ def main():
     binary, work = sys.argv[1], sys.argv[2]
     os.makedirs(work, exist_ok=True)
     rows = []
-    for factor in (1, 3, 9):
-        name = f"srtm_x{factor}"
+    cases = [("srtm", SRTM, f, 32637, []) for f in (1, 3, 9)]
+    cases += [("srtm_utm37_to_38", SRTM_UTM, f, 32638, ["--utm-zone", "38N"]) for f in (1, 9)]
+    for stem, source, factor, epsg, flags in cases:
+        name = f"{stem}_x{factor}"
         src = os.path.join(work, f"{name}.tif")
         if factor == 1:
-            subprocess.run(["cp", SRTM, src], check=True)
+            subprocess.run(["cp", source, src], check=True)
         else:
-            upsampled(factor, src)
+            upsampled(factor, src, source)
         store = os.path.join(work, f"{name}.zarr")
         subprocess.run(["rm", "-rf", store], check=True)
-        wall, rss, said = timed([binary, "ingest", src, "--store", store, "-q"])
+        wall, rss, said = timed([binary, "ingest", src, "--store", store, "-q"] + flags)
         info = json.loads(subprocess.run([binary, "info", store, "--json"],
                                          capture_output=True, text=True, check=True).stdout)
         dsm = info["dsms"][0]
@@ -113,21 +120,21 @@ def main():
         with rasterio.open(src) as s:
             out = np.full((h, w), np.nan, dtype="float32")
             dst_t = Affine(gt[1], 0, gt[0], 0, gt[5], gt[3])
-            reproject(rasterio.band(s, 1), out, dst_transform=dst_t, dst_crs=CRS.from_epsg(32637),
+            reproject(rasterio.band(s, 1), out, dst_transform=dst_t, dst_crs=CRS.from_epsg(epsg),
                       dst_nodata=np.nan, resampling=Resampling.bilinear, tolerance=0)
         gdal_s = time.perf_counter() - t0
         gpath = os.path.join(work, f"{name}_gdal.tif")
         with rasterio.open(gpath, "w", driver="GTiff", width=w, height=h, count=1, dtype="float32",
-                           crs=CRS.from_epsg(32637), transform=dst_t, nodata=np.nan, tiled=True,
+                           crs=CRS.from_epsg(epsg), transform=dst_t, nodata=np.nan, tiled=True,
                            compress="deflate") as d:
             d.write(out, 1)
         gwall, grss, _ = timed([binary, "ingest", gpath, "--store", store, "-q"])
         ev = subprocess.run([binary, "eval", store, "--json", "-q"], capture_output=True,
                             text=True, check=True)
         pair = json.loads(ev.stdout)["pairs"][0]["before"]
-        rows.append((name, f"{w} x {h}", gt[1], wall, rss, exactness(store, name, src, gt),
+        rows.append((name, f"{w} x {h}", gt[1], wall, rss, exactness(store, name, src, gt, epsg),
                      gdal_s, gwall, pair["median_m"], pair["nmad_m"], pair["samples"]))
-    print("| source | UTM grid (px) | pixel m | dsmstream ingest of degrees s | peak MB | "
+    print("| source | UTM grid (px) | pixel m | dsmstream ingest of the source s | peak MB | "
           "max off exact bilinear m | GDAL warp s | + ingest of GDAL's file s | "
           "ours - GDAL dh median m | NMAD m | samples |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")

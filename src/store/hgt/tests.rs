@@ -227,3 +227,60 @@ fn zipped_rows_in_any_order_are_the_plain_rows() {
     }
     assert!(b.read_rows(1200, 2).is_err(), "past the last row");
 }
+
+/// `gdalbuildvrt` over two neighbouring tiles (one plain, one zipped): one
+/// DSM of 2401 x 1201 samples whose shared column is the later tile's where
+/// it has data, as GDAL composes it.
+#[test]
+fn a_vrt_mosaic_of_tiles_is_one_source() {
+    use crate::store::vrt::VrtSource;
+    let dir = tempfile::tempdir().unwrap();
+    let bytes = tile_bytes();
+    std::fs::write(dir.path().join("N39E040.hgt"), &bytes).unwrap();
+    let zipped = zip::tests::archive(&[("N39E041.hgt", &bytes)], true);
+    std::fs::write(dir.path().join("N39E041.SRTMGL3.hgt.zip"), zipped).unwrap();
+    let source = |file: &str, x_off: u64| {
+        format!(
+            r#"<ComplexSource><SourceFilename relativeToVRT="1">{file}</SourceFilename><SourceBand>1</SourceBand>
+      <SourceProperties RasterXSize="1201" RasterYSize="1201" DataType="Int16" BlockXSize="1201" BlockYSize="1" />
+      <SrcRect xOff="0" yOff="0" xSize="1201" ySize="1201" /><DstRect xOff="{x_off}" yOff="0" xSize="1201" ySize="1201" />
+      <NODATA>-32768</NODATA></ComplexSource>"#
+        )
+    };
+    let text = format!(
+        r#"<VRTDataset rasterXSize="2401" rasterYSize="1201">
+  <SRS dataAxisToSRSAxisMapping="2,1">GEOGCS["WGS 84",DATUM["WGS_1984",SPHEROID["WGS 84",6378137,298.257223563,AUTHORITY["EPSG","7030"]],AUTHORITY["EPSG","6326"]],PRIMEM["Greenwich",0,AUTHORITY["EPSG","8901"]],UNIT["degree",0.0174532925199433,AUTHORITY["EPSG","9122"]],AXIS["Latitude",NORTH],AXIS["Longitude",EAST],AUTHORITY["EPSG","4326"]]</SRS>
+  <GeoTransform>  3.9999583333333334e+01,  8.3333333333333339e-04,  0.0000000000000000e+00,  4.0000416666666666e+01,  0.0000000000000000e+00, -8.3333333333333339e-04</GeoTransform>
+  <VRTRasterBand dataType="Int16" band="1">
+    <NoDataValue>-32768</NoDataValue>
+    <ColorInterp>Gray</ColorInterp>
+    {}
+    {}
+  </VRTRasterBand>
+</VRTDataset>"#,
+        source("N39E040.hgt", 0),
+        source("N39E041.SRTMGL3.hgt.zip", 1200)
+    );
+    let path = dir.path().join("srtm.vrt");
+    std::fs::write(&path, text).unwrap();
+    let mut vrt = VrtSource::open(&path).unwrap();
+    assert_eq!((vrt.raster().width, vrt.raster().height), (2401, 1201));
+    assert_eq!(vrt.raster().crs.epsg, Some(4326));
+    let rows = vrt.read_rows(0, 1201).unwrap();
+    let tile = |r: usize, c: usize| {
+        let h = i16::from_be_bytes([bytes[(r * 1201 + c) * 2], bytes[(r * 1201 + c) * 2 + 1]]);
+        (h != VOID).then_some(f32::from(h))
+    };
+    for r in 0..1201 {
+        for c in 0..2401 {
+            let later = (c >= 1200).then(|| tile(r, c - 1200)).flatten();
+            let earlier = (c <= 1200).then(|| tile(r, c)).flatten();
+            let want = later.or(earlier).unwrap_or(f32::NAN);
+            let got = rows[r * 2401 + c];
+            assert!(
+                got.to_bits() == want.to_bits(),
+                "({r}, {c}): {got} / {want}"
+            );
+        }
+    }
+}
