@@ -6,7 +6,9 @@
 //!
 //! Samples are thinned to at most `max_samples` (a pixel stride of 2^k for a
 //! raster, every k-th kept point for a cloud). The reference must be in the
-//! store's CRS and overlap it; otherwise the error is bad input.
+//! store's CRS (a raster may also be in longitude and latitude or another
+//! UTM zone on the datum of the store's zone: its pixel centres are
+//! projected) and overlap it; otherwise the error is bad input.
 
 use std::path::{Path, PathBuf};
 
@@ -170,8 +172,9 @@ fn raster_points(
     let mut source = crate::store::vrt::open_input(path)?;
     let info = source.raster().clone();
     let gt = info.geotransform;
-    // a reference in longitude and latitude (SRTM, Copernicus) is projected
-    // point by point into a store in a UTM zone on its datum
+    // a reference in longitude and latitude (SRTM, Copernicus), or in another
+    // UTM zone, is projected point by point into a store in a UTM zone on its
+    // datum
     let projection = store
         .crs()
         .and_then(|crs| crate::store::warp::projection_into(&info.crs, crs));
@@ -186,9 +189,8 @@ fn raster_points(
         }
     }
     let bounds = match &projection {
-        Some(tm) => {
-            let [e0, n0, e1, n1] =
-                crate::store::warp::projected_bounds(tm, &gt, info.width, info.height);
+        Some(into) => {
+            let [e0, n0, e1, n1] = into.bounds(&gt, info.width, info.height);
             Bounds::from_corners((e0, n0), (e1, n1))
         }
         None => gt.extent(info.width, info.height),

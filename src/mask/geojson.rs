@@ -73,19 +73,26 @@ impl Polygons {
     /// each edge first cut into pieces of at most [`MAX_EDGE_DEG`] so that it
     /// stays the curve it is in metres.
     pub fn projected(&self, tm: &TransverseMercator) -> Polygons {
+        self.mapped(|lon, lat| tm.forward(lon, lat), MAX_EDGE_DEG)
+    }
+
+    /// The polygons with their vertices put through `f`, each edge first cut
+    /// into pieces of at most `max_edge` (in the vertices' units) so that it
+    /// stays the curve it is where `f` takes it.
+    pub fn mapped(&self, f: impl Fn(f64, f64) -> (f64, f64), max_edge: f64) -> Polygons {
         let ring = |ring: &Vec<[f64; 2]>| -> Vec<[f64; 2]> {
             let n = ring.len();
             let mut out = Vec::with_capacity(n);
             for k in 0..n {
                 let (a, b) = (ring[k], ring[(k + 1) % n]);
                 let span = (b[0] - a[0]).abs().max((b[1] - a[1]).abs());
-                let pieces = (span / MAX_EDGE_DEG).ceil().clamp(1.0, 1e6) as usize;
+                let pieces = (span / max_edge).ceil().clamp(1.0, 1e6) as usize;
                 // the closing edge of an open ring too; a closed ring's last
                 // vertex repeats its first, an edge of length zero
                 for i in 0..pieces {
                     let t = i as f64 / pieces as f64;
-                    let (lon, lat) = (a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]));
-                    let (e, n) = tm.forward(lon, lat);
+                    let (x, y) = (a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]));
+                    let (e, n) = f(x, y);
                     out.push([e, n]);
                 }
             }

@@ -161,8 +161,8 @@ fn read_geotiff(path: &Path, target: &MaskTarget) -> Result<BitRaster, MaskError
     };
     let mut reader = GeoTiffReader::open(path)?;
     let info = reader.info().clone();
-    // a mask in longitude and latitude (global land cover) is sampled into
-    // DSMs in a UTM zone on its datum
+    // a mask in longitude and latitude (global land cover), or in another UTM
+    // zone, is sampled into DSMs in a UTM zone on its datum
     let projection =
         (target.crs.as_ref()).and_then(|crs| crate::store::warp::projection_into(&info.crs, crs));
     if let (Some(crs), None) = (&target.crs, &projection) {
@@ -196,30 +196,30 @@ fn read_geotiff(path: &Path, target: &MaskTarget) -> Result<BitRaster, MaskError
         }
     }
     Ok(match projection {
-        Some(tm) => in_zone(&raster, tm, target),
+        Some(into) => in_zone(&raster, &into, target),
         None => raster,
     })
 }
 
-/// A mask in degrees on the finest DSM lattice over the part of the DSMs'
-/// extent it covers: each cell takes the mask cell its centre falls in (the
+/// A mask in degrees (or another UTM zone) on the finest DSM lattice over
+/// the part of the DSMs' extent it covers: each cell takes the mask cell its centre falls in (the
 /// positions exact every 16 cells, as ingest puts DSMs into UTM). A mask that
 /// covers none of the DSMs comes back as one cell over its projected box, for
 /// the caller's message.
 fn in_zone(
     bits: &BitRaster,
-    tm: crate::geo::tm::TransverseMercator,
+    into: &crate::store::warp::IntoZone,
     target: &MaskTarget,
 ) -> BitRaster {
     let (w, h) = (bits.width as u64, bits.height as u64);
-    let [e0, n0, e1, n1] = crate::store::warp::projected_bounds(&tm, &bits.geotransform, w, h);
+    let [e0, n0, e1, n1] = into.bounds(&bits.geotransform, w, h);
     let projected = Bounds::from_corners((e0, n0), (e1, n1));
     let Some(area) = projected.intersection(&target.extent) else {
         let gt = GeoTransform::north_up(e0, n1, (e1 - e0).max(1e-3), (n1 - n0).max(1e-3));
         return BitRaster::new(gt, 1, 1);
     };
     let (gt, width, height) = lattice_over(&area, target.finest);
-    let mapping = crate::store::warp::Mapping::new(tm, gt, width as usize, bits.geotransform, w);
+    let mapping = into.mapping(gt, width as usize, bits.geotransform, w);
     let mut out = BitRaster::new(gt, width, height);
     let mut positions = Vec::new();
     for row in 0..height {
@@ -291,12 +291,21 @@ fn degrees_into(
     }
 }
 
+/// Longest piece of a polygon edge put into another UTM zone (a straight
+/// edge in one zone is a curve in the other, by millimetres over a km).
+const MAX_EDGE_M: f64 = 100.0;
+
 /// GeoJSON polygons rasterised on the finest DSM's lattice over the part of
 /// the DSMs' extent they cover (coarsened 2x until within [`MAX_MASK_CELLS`]).
 fn read_geojson(text: &str, target: &MaskTarget) -> Result<BitRaster, String> {
     let mut polygons = geojson::Polygons::parse(text)?;
     if let Some(tm) = degrees_into(&polygons, target)? {
         polygons = polygons.projected(&tm);
+    } else if let (Some(Some(named)), Some(crs)) = (polygons.named_epsg, &target.crs) {
+        // polygons in another UTM zone on the datum of the DSMs' zone
+        if let Some(into) = crate::store::warp::zone_into(named, crs) {
+            polygons = polygons.mapped(|x, y| into.forward(x, y), MAX_EDGE_M);
+        }
     }
     if let (Some(named), Some(crs)) = (polygons.named_epsg, &target.crs) {
         if named != crs.epsg || crs.epsg.is_none() {

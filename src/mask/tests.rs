@@ -53,13 +53,13 @@ fn a_geotiff_mask_is_stable_where_non_zero() {
 #[test]
 fn a_mask_in_another_crs_is_refused_naming_the_file() {
     let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("utm18.tif");
-    write_mask(&path, 32618, CogSample::Float32, 1.0);
+    let path = dir.path().join("nad83.tif");
+    write_mask(&path, 26917, CogSample::Float32, 1.0);
     let err = StableMask::load(&path, &target()).unwrap_err();
     assert!(err.is_bad_input());
     let text = err.to_string();
     assert!(
-        text.contains("utm18.tif") && text.contains("EPSG:32618") && text.contains("EPSG:32617"),
+        text.contains("nad83.tif") && text.contains("EPSG:26917") && text.contains("EPSG:32617"),
         "{text}"
     );
     assert!(!text.contains('\n'));
@@ -201,6 +201,105 @@ fn a_geotiff_mask_in_degrees_is_sampled_on_the_dsm_lattice() {
         // cell centres 500000.25 + 0.5 c; the boundary within 0.85 m of 500032
         assert!(
             (62..=66).contains(&edge),
+            "row {row}: first excluded cell {edge}"
+        );
+        assert!((edge..128).all(|c| !lookup.is_stable(c, row)));
+    }
+}
+
+/// GeoJSON polygons naming the neighbouring UTM zone (EPSG:32618 for DSMs in
+/// 17N): the west half of the DSMs, its corners given in 18N, is put into
+/// 17N (edges cut every 100 m), and the same cells as in 17N are stable.
+#[test]
+fn geojson_in_another_utm_zone_is_put_into_the_dsms_zone() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("zone18.geojson");
+    let (z17, z18) = (
+        crate::geo::tm::Utm::from_epsg(32617).unwrap().projection(),
+        crate::geo::tm::Utm::from_epsg(32618).unwrap().projection(),
+    );
+    let ring: Vec<String> = [
+        (499_990.0, 4_799_990.0),
+        (500_032.0, 4_799_990.0),
+        (500_032.0, 4_800_070.0),
+        (499_990.0, 4_800_070.0),
+    ]
+    .iter()
+    .map(|&(e, n)| {
+        let (lon, lat) = z17.inverse(e, n);
+        let (x, y) = z18.forward(lon, lat);
+        format!("[{x:.6}, {y:.6}]")
+    })
+    .collect();
+    let doc = format!(
+        r#"{{"type": "Polygon", "crs": {{"type": "name", "properties": {{"name": "EPSG:32618"}}}}, "coordinates": [[{}]]}}"#,
+        ring.join(", ")
+    );
+    std::fs::write(&path, &doc).unwrap();
+    let mask = StableMask::load(&path, &target()).unwrap();
+    let lookup = mask.lookup(&target().finest, 128, 128);
+    let stable = (0..128)
+        .flat_map(|r| (0..128).map(move |c| (c, r)))
+        .filter(|&(c, r)| lookup.is_stable(c, r))
+        .count();
+    assert_eq!(stable, 64 * 128, "{doc}");
+    assert!(lookup.is_stable(63, 0) && !lookup.is_stable(64, 0));
+    // another datum's zone is still refused by name
+    std::fs::write(&path, doc.replace("EPSG:32618", "EPSG:26918")).unwrap();
+    let err = StableMask::load(&path, &target()).unwrap_err().to_string();
+    assert!(
+        err.contains("EPSG:26918") && err.contains("EPSG:32617"),
+        "{err}"
+    );
+}
+
+/// A GeoTIFF mask in the neighbouring UTM zone (18N for DSMs in 17N): each
+/// cell of the DSMs' lattice takes the mask cell its centre falls in. Stable
+/// where a 1 m cell's centre lies west of E 500032 in 17N, a line turned by
+/// the zones' convergence in 18N: the boundary lands within a mask cell of it.
+#[test]
+fn a_geotiff_mask_in_another_utm_zone_is_sampled_on_the_dsm_lattice() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("zone18.tif");
+    let (z17, z18) = (
+        crate::geo::tm::Utm::from_epsg(32617).unwrap().projection(),
+        crate::geo::tm::Utm::from_epsg(32618).unwrap().projection(),
+    );
+    let to18 = |e: f64, n: f64| {
+        let (lon, lat) = z17.inverse(e, n);
+        z18.forward(lon, lat)
+    };
+    let corners = [(500_000.0, 4_800_000.0), (500_064.0, 4_800_064.0)];
+    let (mut x0, mut y1) = (f64::INFINITY, f64::NEG_INFINITY);
+    for e in [corners[0].0, corners[1].0] {
+        for n in [corners[0].1, corners[1].1] {
+            let (x, y) = to18(e, n);
+            (x0, y1) = (x0.min(x), y1.max(y));
+        }
+    }
+    let gt = GeoTransform::north_up((x0 - 20.0).floor(), (y1 + 20.0).ceil(), 1.0, 1.0);
+    let (w, h) = (130u64, 130u64);
+    let data: Vec<f32> = (0..w * h)
+        .map(|k| {
+            let (x, y) = gt.pixel_to_world((k % w) as f64 + 0.5, (k / w) as f64 + 0.5);
+            let (lon, lat) = z18.inverse(x, y);
+            f32::from(u8::from(z17.forward(lon, lat).0 < 500_032.0))
+        })
+        .collect();
+    let options = CogOptions {
+        geotransform: gt,
+        crs: epsg_crs(32618),
+        ..Default::default()
+    };
+    write_geotiff_f32(&path, w, h, options, &data).unwrap();
+    let mask = StableMask::load(&path, &target()).unwrap();
+    assert_eq!(mask.pyramid.levels[0].geotransform.gsd_x(), 0.5);
+    let lookup = mask.lookup(&target().finest, 128, 128);
+    for row in [0, 64, 127] {
+        let edge = (0..128).find(|&c| !lookup.is_stable(c, row)).unwrap();
+        // cell centres 500000.25 + 0.5 c; the boundary within a 1 m cell
+        assert!(
+            (61..=67).contains(&edge),
             "row {row}: first excluded cell {edge}"
         );
         assert!((edge..128).all(|c| !lookup.is_stable(c, row)));

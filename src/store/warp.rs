@@ -281,7 +281,7 @@ pub(crate) struct Mapping {
 impl Mapping {
     /// The mapping of `grid` (`width` cells across, in `tm`'s metres) into a
     /// raster in degrees placed by `source_gt` (see [`Mapping::in_frame`]).
-    pub(crate) fn new(
+    fn new(
         tm: TransverseMercator,
         grid: GeoTransform,
         width: usize,
@@ -414,24 +414,65 @@ fn footprint_in(
     })
 }
 
-/// The box (min E, min N, max E, max N) holding the projected footprint of
-/// a raster in longitude and latitude (its edges at 64 points each).
-pub fn projected_bounds(
-    tm: &TransverseMercator,
-    gt: &GeoTransform,
-    width: u64,
-    height: u64,
-) -> [f64; 4] {
-    footprint_in(tm, &Frame::Degrees, gt, width, height)
+/// How a raster in longitude and latitude, or in another UTM zone, is put
+/// into a collection's UTM zone ([`projection_into`]): for `eval
+/// --reference` and masks, which project points and sample rasters without
+/// ingesting them.
+#[derive(Clone, Debug)]
+pub struct IntoZone {
+    tm: TransverseMercator,
+    frame: Frame,
 }
 
-/// The projection that puts a raster in longitude and latitude (`crs`) into
-/// `collection`'s CRS: `Some` when `crs` is geographic on WGS 84, NAD83 or
-/// ETRS89 and `collection` a UTM zone on the same datum.
-pub fn projection_into(crs: &Crs, collection: &Crs) -> Option<TransverseMercator> {
-    let datum = geographic_datum(crs)?;
+impl IntoZone {
+    /// The zone's coordinates of a point of the raster's frame.
+    pub fn forward(&self, x: f64, y: f64) -> (f64, f64) {
+        let (lon, lat) = self.frame.to_lonlat(x, y);
+        self.tm.forward(lon, lat)
+    }
+
+    /// The box (min E, min N, max E, max N) in the zone holding the footprint
+    /// of a raster placed by `gt` (its edges at [`EDGE_POINTS`] points each).
+    pub fn bounds(&self, gt: &GeoTransform, width: u64, height: u64) -> [f64; 4] {
+        footprint_in(&self.tm, &self.frame, gt, width, height)
+    }
+
+    /// Where the cell centres of `grid` (`width` cells across, in the zone)
+    /// fall in the raster placed by `source_gt`.
+    pub(crate) fn mapping(
+        &self,
+        grid: GeoTransform,
+        width: usize,
+        source_gt: GeoTransform,
+        source_width: u64,
+    ) -> Mapping {
+        Mapping::new(self.tm.clone(), grid, width, source_gt, source_width)
+            .in_frame(self.frame.clone(), source_width)
+    }
+}
+
+/// How a raster in `crs` is put into `collection`'s CRS: `Some` when
+/// `collection` is a UTM zone and `crs` longitude and latitude on its datum
+/// (WGS 84, NAD83 or ETRS89) or another UTM zone on it.
+pub fn projection_into(crs: &Crs, collection: &Crs) -> Option<IntoZone> {
     let zone = code(collection).and_then(Utm::from_epsg)?;
-    (zone.datum == datum).then(|| zone.projection())
+    let frame = source_frame(crs, zone)?;
+    Some(IntoZone {
+        tm: zone.projection(),
+        frame,
+    })
+}
+
+/// How coordinates of the UTM zone whose EPSG code is `epsg` are put into
+/// `collection`'s UTM zone: `Some` when both are UTM zones on one datum and
+/// differ (a mask's polygons that name their CRS by code).
+pub fn zone_into(epsg: u32, collection: &Crs) -> Option<IntoZone> {
+    let from = Utm::from_epsg(epsg)?;
+    let zone = code(collection).and_then(Utm::from_epsg)?;
+    (from.datum == zone.datum && from != zone).then(|| IntoZone {
+        tm: zone.projection(),
+        frame: Frame::Zone(from.projection()),
+    })
 }
 
 /// `x` rounded to two significant digits (71.4 -> 71, 0.926 -> 0.93).

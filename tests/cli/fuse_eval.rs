@@ -316,12 +316,12 @@ fn references_in_another_crs_or_elsewhere_are_refused() {
         write_geotiff_f32(&path, 32, 32, options, &vec![210.0; 32 * 32]).unwrap();
         path
     };
-    let utm16 = write("utm16.tif", epsg_crs(32616), 500_010.0);
+    let nad83 = write("nad83.tif", epsg_crs(26917), 500_010.0);
     let far = write("far.tif", epsg_crs(32617), 700_000.0);
     // PDAL's Autzen lidar, in feet: named for its unit, not compared in it
     let feet = fixtures().join("real/pdal/autzen_trim.laz");
     for (path, needle) in [
-        (&utm16, "differs from the store"),
+        (&nad83, "differs from the store"),
         (&far, "does not overlap"),
         (
             &feet,

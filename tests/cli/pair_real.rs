@@ -388,4 +388,32 @@ fn a_dsm_in_the_neighbouring_utm_zone_is_put_into_the_collections_zone() {
             truth[k]
         );
     }
+    // the 37N tile as a reference of its own 38N copy: its pixel centres are
+    // projected into 38N, and the two agree to the resampling
+    let out = bin()
+        .arg("ingest")
+        .arg(fixture("srtm_ref_utm.tif"))
+        .args(["--utm-zone", "38N", "-q", "--store"])
+        .arg(dir.path().join("utm38.zarr"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let out = bin()
+        .arg("eval")
+        .arg(dir.path().join("utm38.zarr"))
+        .arg("--reference")
+        .arg(fixture("srtm_ref_utm.tif"))
+        .args(["--json", "-q"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let doc: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let notes = doc["reference"]["notes"].to_string();
+    assert!(notes.contains("projected from EPSG:32637"), "{notes}");
+    let before = &doc["reference"]["before"];
+    let f = |k: &str| before[k].as_f64().unwrap();
+    assert!(
+        f("inlier_fraction") > 0.95 && f("median_m").abs() < 0.1 && f("nmad_m") < 3.0,
+        "{before}"
+    );
 }

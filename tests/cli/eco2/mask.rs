@@ -157,11 +157,12 @@ fn a_mask_excluding_a_changed_area_registers_the_pair_correctly() {
         (by_degrees - by_polygon).abs() < 0.01,
         "with the polygons in degrees: {by_degrees} m, in metres {by_polygon} m"
     );
-    // a mask in another CRS: one line, exit 2, the file named
-    let utm18 = p.dir.path().join("utm18.tif");
-    write_tiff_mask(&utm18, area, p.raised, 32618);
-    let out = run(&[&"pair", &p.store, &"tile_00", &"tile_01", &"--mask", &utm18]);
-    assert_refusal(&out, "utm18.tif", "EPSG:32618");
+    // a mask in another CRS (another datum; a UTM zone on the DSMs' datum
+    // would be sampled into theirs): one line, exit 2, the file named
+    let nad83 = p.dir.path().join("nad83.tif");
+    write_tiff_mask(&nad83, area, p.raised, 26917);
+    let out = run(&[&"pair", &p.store, &"tile_00", &"tile_01", &"--mask", &nad83]);
+    assert_refusal(&out, "nad83.tif", "EPSG:26917");
     // a mask with no stable cell in the overlap: said so, exit 2
     let elsewhere = p.dir.path().join("elsewhere.tif");
     write_tiff_mask(&elsewhere, area, p.overlap.grown(250.0), 32617);
