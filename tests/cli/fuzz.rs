@@ -86,6 +86,71 @@ proptest! {
     }
 }
 
+proptest! {
+    #![proptest_config(ProptestConfig { cases: cases(300), ..ProptestConfig::default() })]
+
+    /// A zipped SRTM tile with bytes changed in its local header, its data or
+    /// its central directory: refused in one line naming the file, or read
+    /// whole with the heights of the tile as it was (a change that reaches
+    /// the heights is caught by Deflate or by the CRC-32 at the member's end,
+    /// never read as heights).
+    #[test]
+    fn zipped_hgt_reader_never_panics(muts in prop::collection::vec((0.0..1.0f64, any::<u8>(), 0..3u8), 1..6)) {
+        use dsmstream::store::hgt::HgtSource;
+        use dsmstream::store::source::RowSource;
+        let dir = tempfile::tempdir().unwrap();
+        let mut bytes = std::fs::read(fixtures().join("hgt/N39E040.SRTMGL3.hgt.zip")).unwrap();
+        let n = bytes.len();
+        for (at, byte, part) in muts {
+            // the local header, the central directory and end record, anywhere
+            let (start, span) = match part {
+                0 => (0, 64),
+                1 => (n - 128, 128),
+                _ => (0, n),
+            };
+            bytes[start + ((at * span as f64) as usize).min(span - 1)] = byte;
+        }
+        let path = dir.path().join("N39E040.hgt.zip");
+        std::fs::write(&path, &bytes).unwrap();
+        let named = |e: &dsmstream::store::source::SourceError| {
+            one_line(e) && e.message.contains("N39E040.hgt.zip")
+        };
+        match HgtSource::open(&path) {
+            Err(e) => prop_assert!(named(&e), "{}", e.message),
+            Ok(mut source) => {
+                let h = source.raster().height;
+                let (mut row0, mut all) = (0, Vec::new());
+                while row0 < h {
+                    let rows = 100.min(h - row0);
+                    match source.read_rows(row0, rows) {
+                        Ok(band) => all.extend(band),
+                        Err(e) => {
+                            prop_assert!(named(&e), "{}", e.message);
+                            return Ok(());
+                        }
+                    }
+                    row0 += rows;
+                }
+                let same = all.len() == hgt_heights().len()
+                    && all.iter().zip(hgt_heights()).all(|(a, b)| a.to_bits() == b.to_bits());
+                prop_assert!(same, "read whole, but not the tile's heights");
+            }
+        }
+    }
+}
+
+/// The heights of the zipped SRTM fixture, read once per test process.
+fn hgt_heights() -> &'static [f32] {
+    use dsmstream::store::source::RowSource;
+    static HEIGHTS: std::sync::OnceLock<Vec<f32>> = std::sync::OnceLock::new();
+    HEIGHTS.get_or_init(|| {
+        let path = fixtures().join("hgt/N39E040.SRTMGL3.hgt.zip");
+        let mut source = dsmstream::store::hgt::HgtSource::open(&path).unwrap();
+        let h = source.raster().height;
+        source.read_rows(0, h).unwrap()
+    })
+}
+
 /// A store of two fixture DSMs (chunk 64), made once per test process.
 fn template_store() -> &'static Path {
     static STORE: std::sync::OnceLock<(tempfile::TempDir, PathBuf)> = std::sync::OnceLock::new();

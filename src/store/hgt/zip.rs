@@ -39,10 +39,11 @@ fn u32_at(b: &[u8], at: usize) -> Option<u32> {
     Some(u32::from_le_bytes(b.get(at..at + 4)?.try_into().ok()?))
 }
 
-/// `len` bytes of `r` from `at` (fewer at the end of the file).
+/// `len` bytes of `r` from `at` (fewer at the end of the file; a corrupt
+/// length allocates no more than the file holds).
 fn read_at<R: Read + Seek>(r: &mut R, at: u64, len: usize) -> std::io::Result<Vec<u8>> {
     r.seek(SeekFrom::Start(at))?;
-    let mut out = Vec::with_capacity(len);
+    let mut out = Vec::with_capacity(len.min(1 << 16));
     r.take(len as u64).read_to_end(&mut out)?;
     Ok(out)
 }
