@@ -95,6 +95,21 @@ fn geojson_polygons_are_rasterised_on_the_finest_dsm_lattice() {
     );
 }
 
+/// The mask holds the western half of the DSMs of [`target`], E 500000 to
+/// 500032, and nothing else (`what` says which mask in a failure).
+fn assert_west_half_stable(mask: &StableMask, what: &str) {
+    let lookup = mask.lookup(&target().finest, 128, 128);
+    let stable = (0..128)
+        .flat_map(|r| (0..128).map(move |c| (c, r)))
+        .filter(|&(c, r)| lookup.is_stable(c, r))
+        .count();
+    assert_eq!(stable, 64 * 128, "{what}");
+    assert!(
+        lookup.is_stable(63, 0) && !lookup.is_stable(64, 0),
+        "{what}"
+    );
+}
+
 /// The polygons of the test above in longitude and latitude, as RFC 7946
 /// GeoJSON has them (no "crs" member, or CRS84 named): put into the DSMs'
 /// UTM zone, the same cells are stable. Degrees into DSMs that are not in a
@@ -128,14 +143,7 @@ fn geojson_in_degrees_is_put_into_the_dsms_utm_zone() {
         ),
     ] {
         std::fs::write(&path, &doc).unwrap();
-        let mask = StableMask::load(&path, &target()).unwrap();
-        let lookup = mask.lookup(&target().finest, 128, 128);
-        let stable = (0..128)
-            .flat_map(|r| (0..128).map(move |c| (c, r)))
-            .filter(|&(c, r)| lookup.is_stable(c, r))
-            .count();
-        assert_eq!(stable, 64 * 128, "{doc}");
-        assert!(lookup.is_stable(63, 0) && !lookup.is_stable(64, 0));
+        assert_west_half_stable(&StableMask::load(&path, &target()).unwrap(), &doc);
     }
     let local = MaskTarget {
         crs: Some(epsg_crs(2154)),
@@ -193,17 +201,24 @@ fn a_geotiff_mask_in_degrees_is_sampled_on_the_dsm_lattice() {
         ..Default::default()
     };
     write_geotiff_f32(&path, w, h, options, &data).unwrap();
-    let mask = StableMask::load(&path, &target()).unwrap();
+    // cell centres 500000.25 + 0.5 c; the boundary within 0.85 m of 500032
+    assert_stable_west_of(&path, 62..=66);
+}
+
+/// The GeoTIFF mask at `path`, sampled on the lattice of [`target`], is
+/// stable in each row up to a first excluded cell within `edge` and not
+/// after it.
+fn assert_stable_west_of(path: &Path, edge: std::ops::RangeInclusive<i64>) {
+    let mask = StableMask::load(path, &target()).unwrap();
     assert_eq!(mask.pyramid.levels[0].geotransform.gsd_x(), 0.5);
     let lookup = mask.lookup(&target().finest, 128, 128);
     for row in [0, 64, 127] {
-        let edge = (0..128).find(|&c| !lookup.is_stable(c, row)).unwrap();
-        // cell centres 500000.25 + 0.5 c; the boundary within 0.85 m of 500032
+        let first = (0..128).find(|&c| !lookup.is_stable(c, row)).unwrap();
         assert!(
-            (62..=66).contains(&edge),
-            "row {row}: first excluded cell {edge}"
+            edge.contains(&first),
+            "row {row}: first excluded cell {first}"
         );
-        assert!((edge..128).all(|c| !lookup.is_stable(c, row)));
+        assert!((first..128).all(|c| !lookup.is_stable(c, row)));
     }
 }
 
@@ -236,14 +251,7 @@ fn geojson_in_another_utm_zone_is_put_into_the_dsms_zone() {
         ring.join(", ")
     );
     std::fs::write(&path, &doc).unwrap();
-    let mask = StableMask::load(&path, &target()).unwrap();
-    let lookup = mask.lookup(&target().finest, 128, 128);
-    let stable = (0..128)
-        .flat_map(|r| (0..128).map(move |c| (c, r)))
-        .filter(|&(c, r)| lookup.is_stable(c, r))
-        .count();
-    assert_eq!(stable, 64 * 128, "{doc}");
-    assert!(lookup.is_stable(63, 0) && !lookup.is_stable(64, 0));
+    assert_west_half_stable(&StableMask::load(&path, &target()).unwrap(), &doc);
     // another datum's zone is still refused by name
     std::fs::write(&path, doc.replace("EPSG:32618", "EPSG:26918")).unwrap();
     let err = StableMask::load(&path, &target()).unwrap_err().to_string();
@@ -292,18 +300,8 @@ fn a_geotiff_mask_in_another_utm_zone_is_sampled_on_the_dsm_lattice() {
         ..Default::default()
     };
     write_geotiff_f32(&path, w, h, options, &data).unwrap();
-    let mask = StableMask::load(&path, &target()).unwrap();
-    assert_eq!(mask.pyramid.levels[0].geotransform.gsd_x(), 0.5);
-    let lookup = mask.lookup(&target().finest, 128, 128);
-    for row in [0, 64, 127] {
-        let edge = (0..128).find(|&c| !lookup.is_stable(c, row)).unwrap();
-        // cell centres 500000.25 + 0.5 c; the boundary within a 1 m cell
-        assert!(
-            (61..=67).contains(&edge),
-            "row {row}: first excluded cell {edge}"
-        );
-        assert!((edge..128).all(|c| !lookup.is_stable(c, row)));
-    }
+    // cell centres 500000.25 + 0.5 c; the boundary within a 1 m cell
+    assert_stable_west_of(&path, 61..=67);
 }
 
 #[test]

@@ -85,7 +85,6 @@ fn srtm_shift_beyond_the_default_cap_is_flagged_not_returned() {
 /// 0.36 m; GDAL's 90 m warp gives (+222.55, -459.05, -0.06) m).
 #[test]
 fn srtm_in_degrees_is_put_into_utm_and_its_shift_found_at_defaults() {
-    use dsmstream::geo::tm::Utm;
     let dir = tempfile::tempdir().unwrap();
     let store = dir.path().join("deg.zarr");
     ingest(
@@ -95,29 +94,69 @@ fn srtm_in_degrees_is_put_into_utm_and_its_shift_found_at_defaults() {
         ],
         &store,
     );
-    let (code, doc) = crate::util::pair_json(&store, "srtm_ref", "srtm_blurred_and_shifted");
+    let (centre, _) = move_in(32637, (40.4175, 39.58125), (0.0, 0.0));
+    let truth = [222.0, -459.1, 0.0];
+    let ids = ("srtm_ref", "srtm_blurred_and_shifted");
+    assert_pair_moves(
+        &store,
+        ids,
+        [centre[0], centre[1], 2000.0],
+        truth,
+        [3.0, 2.0, 0.5],
+    );
+}
+
+/// `eval <store> --reference <path> --json`: its `reference` part, whose
+/// notes say the pixel centres were projected from `from`.
+fn eval_reference(store: &Path, path: &Path, from: &str) -> serde_json::Value {
+    let out = bin()
+        .arg("eval")
+        .arg(store)
+        .arg("--reference")
+        .arg(path)
+        .args(["--json", "-q"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let doc: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let notes = doc["reference"]["notes"].to_string();
+    assert!(notes.contains(&format!("projected from {from}")), "{notes}");
+    doc["reference"].clone()
+}
+
+/// The UTM position (zone `epsg`) of (lon, lat), and how far a move by
+/// (dlon, dlat) degrees takes it there (m).
+fn move_in(epsg: u32, (lon, lat): (f64, f64), (dlon, dlat): (f64, f64)) -> ([f64; 2], [f64; 2]) {
+    let tm = dsmstream::geo::tm::Utm::from_epsg(epsg)
+        .unwrap()
+        .projection();
+    let (e, n) = tm.forward(lon, lat);
+    let (e1, n1) = tm.forward(lon + dlon, lat + dlat);
+    ([e, n], [e1 - e, n1 - n])
+}
+
+/// `pair` of `ids` (reference, moving) at the defaults converges, and where
+/// it moves the point `centre` lies within `bounds` (m, per axis) and 3 of
+/// its sigmas of where `truth` moves it.
+fn assert_pair_moves(
+    store: &Path,
+    ids: (&str, &str),
+    centre: [f64; 3],
+    truth: [f64; 3],
+    bounds: [f64; 3],
+) {
+    let (code, doc) = crate::util::pair_json(store, ids.0, ids.1);
     assert_eq!(code, Some(0), "{doc}");
     let result = &doc["result"];
     assert_eq!(result["status"], "converged", "{result}");
     let m = |r: usize, c: usize| result["matrix_world"][r][c].as_f64().unwrap();
-    let (e, n) = Utm::from_epsg(32637)
-        .unwrap()
-        .projection()
-        .forward(40.4175, 39.58125);
-    let centre = [e, n, 2000.0];
-    let moved: Vec<f64> = (0..3)
-        .map(|r| (0..3).map(|c| m(r, c) * centre[c]).sum::<f64>() + m(r, 3) - centre[r])
-        .collect();
-    let truth = [222.0, -459.1, 0.0];
-    let bounds = [3.0, 2.0, 0.5];
     let sigma = &result["sigma"]["shift_m"];
     for k in 0..3 {
-        let err = (moved[k] - truth[k]).abs();
-        let s = sigma[k].as_f64().unwrap();
+        let moved = (0..3).map(|c| m(k, c) * centre[c]).sum::<f64>() + m(k, 3) - centre[k];
+        let (err, s) = ((moved - truth[k]).abs(), sigma[k].as_f64().unwrap());
         assert!(
             err < bounds[k] && err < 3.0 * s,
-            "axis {k}: found {:.2} m, truth {} m, sigma {s:.2} m",
-            moved[k],
+            "axis {k}: found {moved:.2} m, truth {:.2} m, sigma {s:.2} m",
             truth[k]
         );
     }
@@ -135,22 +174,8 @@ fn a_reference_in_degrees_is_projected_into_the_store() {
     let store = dir.path().join("one.zarr");
     ingest(&[fixture("srtm_ref.tif")], &store);
     let reference = |path: PathBuf| {
-        let out = bin()
-            .arg("eval")
-            .arg(&store)
-            .arg("--reference")
-            .arg(path)
-            .args(["--json", "-q"])
-            .output()
-            .unwrap();
-        assert!(out.status.success(), "{}", text(&out.stderr));
-        let doc: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-        let notes = doc["reference"]["notes"].to_string();
-        assert!(notes.contains("projected from EPSG:4326"), "{notes}");
-        (
-            doc["reference"]["kind"].clone(),
-            doc["reference"]["before"].clone(),
-        )
+        let doc = eval_reference(&store, &path, "EPSG:4326");
+        (doc["kind"].clone(), doc["before"].clone())
     };
     let (kind, same) = reference(fixture("srtm_ref.tif"));
     assert_eq!(kind, "geotiff");
@@ -303,33 +328,16 @@ fn a_real_dsm_georeferenced_by_side_files_pairs_as_its_geotiff_twin() {
 /// 0) m, sigmas 3.6 / 3.6 / 0.37 m; the overlap is mountains seen at 72 m).
 #[test]
 fn a_zipped_srtm_tile_is_placed_by_its_name_and_registered() {
-    use dsmstream::geo::tm::Utm;
     let dir = tempfile::tempdir().unwrap();
     let store = dir.path().join("hgt.zarr");
     let tile = fixtures().join("hgt/N39E040.SRTMGL3.hgt.zip");
     ingest(&[fixture("srtm_ref.tif"), tile], &store);
-    let (code, doc) = crate::util::pair_json(&store, "srtm_ref", "N39E040.SRTMGL3");
-    assert_eq!(code, Some(0), "{doc}");
-    let result = &doc["result"];
-    assert_eq!(result["status"], "converged", "{result}");
-    let m = |r: usize, c: usize| result["matrix_world"][r][c].as_f64().unwrap();
     // the overlap's centre, and where its half-pixel move takes it
-    let tm = Utm::from_epsg(32637).unwrap().projection();
     let (lon, lat, half) = (40.0 + 250.0 / 1200.0, 40.0 - 250.0 / 1200.0, 0.5 / 1200.0);
-    let (e, n) = tm.forward(lon, lat);
-    let (e1, n1) = tm.forward(lon + half, lat - half);
-    let centre = [e, n, 1800.0];
-    let truth = [e1 - e, n1 - n, 0.0];
-    let sigma = &result["sigma"]["shift_m"];
-    for k in 0..3 {
-        let moved = (0..3).map(|c| m(k, c) * centre[c]).sum::<f64>() + m(k, 3) - centre[k];
-        let (err, s) = ((moved - truth[k]).abs(), sigma[k].as_f64().unwrap());
-        assert!(
-            err < 3.0 * s && err < [5.0, 5.0, 1.0][k],
-            "axis {k}: found {moved:.2} m, truth {:.2} m, sigma {s:.2} m",
-            truth[k]
-        );
-    }
+    let (centre, truth) = move_in(32637, (lon, lat), (half, -half));
+    let ids = ("srtm_ref", "N39E040.SRTMGL3");
+    let (centre, truth) = ([centre[0], centre[1], 1800.0], [truth[0], truth[1], 0.0]);
+    assert_pair_moves(&store, ids, centre, truth, [5.0, 5.0, 1.0]);
 }
 
 /// A collection across a UTM zone boundary: GDAL's UTM 37N twins of the
@@ -342,7 +350,6 @@ fn a_zipped_srtm_tile_is_placed_by_its_name_and_registered() {
 /// and latitude: 3.5 m when one side is GDAL's) cancels between them.
 #[test]
 fn a_dsm_in_the_neighbouring_utm_zone_is_put_into_the_collections_zone() {
-    use dsmstream::geo::tm::Utm;
     let dir = tempfile::tempdir().unwrap();
     let store = dir.path().join("z38.zarr");
     let run = |path: PathBuf, extra: &[&str]| {
@@ -363,54 +370,23 @@ fn a_dsm_in_the_neighbouring_utm_zone_is_put_into_the_collections_zone() {
         said.contains("reprojected from EPSG:32637 to EPSG:32638, UTM 38N (WGS 84) at 90 m"),
         "{said}"
     );
-    let (code, doc) = crate::util::pair_json(&store, "srtm_ref_utm", "srtm_bs_utm");
-    assert_eq!(code, Some(0), "{doc}");
-    let result = &doc["result"];
-    assert_eq!(result["status"], "converged", "{result}");
-    let m = |r: usize, c: usize| result["matrix_world"][r][c].as_f64().unwrap();
-    let tm = Utm::from_epsg(32638).unwrap().projection();
-    let (lon, lat) = (40.4175, 39.58125);
-    let (e, n) = tm.forward(lon, lat);
-    let (e1, n1) = tm.forward(lon + 3.0 / 1200.0, lat - 5.0 / 1200.0);
-    let centre = [e, n, 2000.0];
-    let truth = [e1 - e, n1 - n, 0.0];
-    let sigma = &result["sigma"]["shift_m"];
-    for k in 0..3 {
-        let moved = (0..3).map(|c| m(k, c) * centre[c]).sum::<f64>() + m(k, 3) - centre[k];
-        let (err, s) = ((moved - truth[k]).abs(), sigma[k].as_f64().unwrap());
-        eprintln!(
-            "axis {k}: found {moved:.2} m, truth {:.2} m, sigma {s:.2} m",
-            truth[k]
-        );
-        assert!(
-            err < [3.0, 2.0, 0.5][k] && err < 3.0 * s,
-            "axis {k}: found {moved:.2} m, truth {:.2} m, sigma {s:.2} m",
-            truth[k]
-        );
-    }
+    let (centre, truth) = move_in(32638, (40.4175, 39.58125), (3.0 / 1200.0, -5.0 / 1200.0));
+    let ids = ("srtm_ref_utm", "srtm_bs_utm");
+    let (centre, truth) = ([centre[0], centre[1], 2000.0], [truth[0], truth[1], 0.0]);
+    assert_pair_moves(&store, ids, centre, truth, [3.0, 2.0, 0.5]);
     // the 37N tile as a reference of its own 38N copy: its pixel centres are
     // projected into 38N, and the two agree to the resampling
+    let utm38 = dir.path().join("utm38.zarr");
     let out = bin()
         .arg("ingest")
         .arg(fixture("srtm_ref_utm.tif"))
         .args(["--utm-zone", "38N", "-q", "--store"])
-        .arg(dir.path().join("utm38.zarr"))
+        .arg(&utm38)
         .output()
         .unwrap();
     assert!(out.status.success(), "{}", text(&out.stderr));
-    let out = bin()
-        .arg("eval")
-        .arg(dir.path().join("utm38.zarr"))
-        .arg("--reference")
-        .arg(fixture("srtm_ref_utm.tif"))
-        .args(["--json", "-q"])
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{}", text(&out.stderr));
-    let doc: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    let notes = doc["reference"]["notes"].to_string();
-    assert!(notes.contains("projected from EPSG:32637"), "{notes}");
-    let before = &doc["reference"]["before"];
+    let doc = eval_reference(&utm38, &fixture("srtm_ref_utm.tif"), "EPSG:32637");
+    let before = &doc["before"];
     let f = |k: &str| before[k].as_f64().unwrap();
     assert!(
         f("inlier_fraction") > 0.95 && f("median_m").abs() < 0.1 && f("nmad_m") < 3.0,

@@ -173,6 +173,14 @@ fn bad_tiles_are_refused_naming_the_file_and_the_problem() {
             write("N39E040.zip", &bytes[..5000]),
             "not a zip archive, or truncated",
         ),
+        (
+            // a corrupt name with a newline: still one line (fuzz case)
+            write(
+                "N.zip",
+                &zip::tests::archive(&[("N39E040.h\nt", b"x")], false),
+            ),
+            "holds none (N39E040.h\u{fffd}t)",
+        ),
     ];
     for (path, want) in cases {
         let err = HgtSource::open(&path).err().expect("refused");
@@ -183,6 +191,7 @@ fn bad_tiles_are_refused_naming_the_file_and_the_problem() {
             err.message
         );
         assert!(err.message.contains(want), "{}", err.message);
+        assert!(!err.message.contains('\n'), "{}", err.message);
     }
 }
 

@@ -88,8 +88,13 @@ pub fn members<R: Read + Seek>(r: &mut R) -> Result<Vec<Member>, String> {
         if [compressed, uncompressed, local].contains(&ZIP64_MARK) {
             return Err(ZIP64.into());
         }
+        // control characters (a newline in a corrupt name) would break the
+        // one-line messages that show the name
+        let name: String = (String::from_utf8_lossy(name).chars())
+            .map(|c| if c.is_control() { '\u{fffd}' } else { c })
+            .collect();
         out.push(Member {
-            name: String::from_utf8_lossy(name).into_owned(),
+            name,
             flags: field(8)?,
             method: field(10)?,
             crc32: word(16)?,
