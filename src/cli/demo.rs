@@ -130,7 +130,7 @@ fn run_collection(data_dir: &Path, work: &Path) -> anyhow::Result<()> {
     let options = IngestOptions {
         storage: StorageSettings::default(),
         force: false,
-        utm_zone: None,
+        target: None,
     };
     let ingested = ingest(&[data_dir.to_path_buf()], &store, &options, &NoProgress)
         .map_err(|e| super::common::classify(e, |e| e.is_bad_input()))?;

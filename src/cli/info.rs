@@ -92,7 +92,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         })
         .collect();
     if !reprojected.is_empty() {
-        let _ = writeln!(t, "put into UTM at ingest: {}", reprojected.join(", "));
+        let _ = writeln!(t, "reprojected at ingest: {}", reprojected.join(", "));
     }
     let _ = writeln!(
         t,

@@ -7,7 +7,7 @@ use std::cell::RefCell;
 use std::path::PathBuf;
 
 use dsmstream::store::ingest::{DsmAction, DsmOutcome, IngestProgress};
-use dsmstream::store::warp::ZoneChoice;
+use dsmstream::store::warp::{CrsChoice, ZoneChoice};
 use dsmstream::store::{ingest, Compression, IngestOptions, StorageSettings};
 use dsmstream::InputError;
 use tracing_indicatif::span_ext::IndicatifSpanExt;
@@ -36,10 +36,21 @@ pub struct Args {
     /// Re-ingest DSMs even when their source is unchanged.
     #[arg(long)]
     pub force: bool,
-    /// The UTM zone DSMs in longitude and latitude are put into, e.g. 37N or
-    /// 33S (default: the collection's zone, else the zone of their centre).
-    #[arg(long, value_parser = parse_zone)]
+    /// The UTM zone DSMs in longitude and latitude or in other projected
+    /// CRSs are put into, e.g. 37N or 33S (default: the collection's CRS,
+    /// else the zone of their centre).
+    #[arg(long, value_parser = parse_zone, conflicts_with = "crs")]
     pub utm_zone: Option<ZoneChoice>,
+    /// The CRS they are put into instead, by EPSG code: a UTM zone or one of
+    /// the national and polar grids dsmstream knows, e.g. EPSG:3413.
+    #[arg(long, value_parser = parse_crs)]
+    pub crs: Option<CrsChoice>,
+}
+
+fn parse_crs(text: &str) -> Result<CrsChoice, String> {
+    CrsChoice::parse_epsg(text).ok_or_else(|| {
+        format!("not a CRS dsmstream can put DSMs into: {text:?} (an EPSG code of a UTM zone or of the grids the README lists, e.g. EPSG:3413)")
+    })
 }
 
 fn parse_zone(text: &str) -> Result<ZoneChoice, String> {
@@ -230,7 +241,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             ..Default::default()
         },
         force: args.force,
-        utm_zone: args.utm_zone,
+        target: (args.utm_zone.map(CrsChoice::Zone)).or(args.crs),
     };
     require_writable_dir(&args.store)?;
     let inputs = expand_lists(&args.inputs)?;

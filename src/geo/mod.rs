@@ -8,6 +8,7 @@
 
 pub mod bounds;
 pub mod crs;
+pub mod proj;
 pub mod rigid;
 pub mod tm;
 pub mod transform;

@@ -201,11 +201,11 @@ pub(crate) fn crs_from_entries(entries: Vec<(u16, GeoKeyValue)>) -> Result<Crs, 
     crs_from_tags(&directory, &doubles, Some(&ascii))
 }
 
-/// The projected CRS of a UTM zone (by its EPSG code) with the vertical keys
-/// of `heights` (the CRS a DSM's heights were given in, kept when a DSM in
-/// longitude and latitude is put into the zone).
-pub fn utm_crs(utm: &crate::geo::tm::Utm, heights: &Crs) -> Option<Crs> {
-    let code = u16::try_from(utm.epsg()?).ok()?;
+/// The projected CRS whose EPSG code is `code` with the vertical keys of
+/// `heights` (the CRS a DSM's heights were given in, kept when a DSM in
+/// longitude and latitude is put into a projected CRS).
+pub fn projected_crs(code: u32, heights: &Crs) -> Option<Crs> {
+    let code = u16::try_from(code).ok()?;
     let mut entries = vec![
         (key::GT_MODEL_TYPE, GeoKeyValue::Short(MODEL_PROJECTED)),
         (key::GT_RASTER_TYPE, GeoKeyValue::Short(1)),

@@ -9,7 +9,7 @@
 use serde_json::Value;
 
 use super::raster::BitRaster;
-use crate::geo::tm::TransverseMercator;
+use crate::geo::proj::Projection;
 use crate::geo::{Bounds, GeoTransform};
 
 /// The longest piece (degrees) a polygon edge in longitude and latitude is
@@ -72,8 +72,8 @@ impl Polygons {
     /// The polygons with (longitude, latitude) vertices put through `tm`,
     /// each edge first cut into pieces of at most [`MAX_EDGE_DEG`] so that it
     /// stays the curve it is in metres.
-    pub fn projected(&self, tm: &TransverseMercator) -> Polygons {
-        self.mapped(|lon, lat| tm.forward(lon, lat), MAX_EDGE_DEG)
+    pub fn projected(&self, projection: &Projection) -> Polygons {
+        self.mapped(|lon, lat| projection.forward(lon, lat), MAX_EDGE_DEG)
     }
 
     /// The polygons with their vertices put through `f`, each edge first cut

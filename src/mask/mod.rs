@@ -252,15 +252,14 @@ fn lattice_over(area: &Bounds, finest: GeoTransform) -> (GeoTransform, i64, i64)
 }
 
 /// The projection that puts polygons in longitude and latitude into the DSMs'
-/// UTM zone: when the document names WGS 84, ETRS89 or NAD83 degrees (or
+/// CRS (a UTM zone or another [`crate::geo::proj::ProjectedCrs`]): when the document names WGS 84, ETRS89 or NAD83 degrees (or
 /// CRS84), or names nothing, as RFC 7946 has it, and every vertex could be a
 /// longitude and latitude while the DSMs' extent could not. WGS 84 is taken
-/// as the zone's datum (the three differ by 1-2 m).
+/// as the CRS's datum (the three differ by 1-2 m).
 fn degrees_into(
     polygons: &geojson::Polygons,
     target: &MaskTarget,
-) -> Result<Option<crate::geo::tm::TransverseMercator>, String> {
-    use crate::geo::tm::Utm;
+) -> Result<Option<crate::geo::proj::Projection>, String> {
     let named_degrees = matches!(polygons.named_epsg, Some(Some(4326 | 4258 | 4269)));
     let e = &target.extent;
     let dsms_in_degrees_range =
@@ -277,13 +276,11 @@ fn degrees_into(
             polygons.bounds().to_array()
         ));
     }
-    let zone = (target.crs.as_ref())
-        .and_then(crate::geotiff::equivalent::code)
-        .and_then(Utm::from_epsg);
-    match zone {
-        Some(zone) => Ok(Some(zone.projection())),
+    let projection = (target.crs.as_ref()).and_then(crate::store::warp::projection_of);
+    match projection {
+        Some(projection) => Ok(Some(projection)),
         None if named_degrees => Err(format!(
-            "the polygons are in longitude and latitude and the DSMs' CRS {} is not a UTM zone; reproject them (ogr2ogr -t_srs {})",
+            "the polygons are in longitude and latitude and the DSMs' CRS {} is not a projected CRS dsmstream knows; reproject them (ogr2ogr -t_srs {})",
             target.crs.as_ref().map_or("unknown".to_string(), |c| c.label()),
             target.crs.as_ref().map_or("EPSG:...".to_string(), |c| c.label()),
         )),
@@ -299,8 +296,8 @@ const MAX_EDGE_M: f64 = 100.0;
 /// the DSMs' extent they cover (coarsened 2x until within [`MAX_MASK_CELLS`]).
 fn read_geojson(text: &str, target: &MaskTarget) -> Result<BitRaster, String> {
     let mut polygons = geojson::Polygons::parse(text)?;
-    if let Some(tm) = degrees_into(&polygons, target)? {
-        polygons = polygons.projected(&tm);
+    if let Some(projection) = degrees_into(&polygons, target)? {
+        polygons = polygons.projected(&projection);
     } else if let (Some(Some(named)), Some(crs)) = (polygons.named_epsg, &target.crs) {
         // polygons in another UTM zone on the datum of the DSMs' zone
         if let Some(into) = crate::store::warp::zone_into(named, crs) {

@@ -146,7 +146,7 @@ fn geojson_in_degrees_is_put_into_the_dsms_utm_zone() {
         assert_west_half_stable(&StableMask::load(&path, &target()).unwrap(), &doc);
     }
     let local = MaskTarget {
-        crs: Some(epsg_crs(2154)),
+        crs: Some(epsg_crs(27700)),
         ..target()
     };
     std::fs::write(
@@ -159,7 +159,7 @@ fn geojson_in_degrees_is_put_into_the_dsms_utm_zone() {
     .unwrap();
     let err = StableMask::load(&path, &local).unwrap_err().to_string();
     assert!(
-        err.contains("degrees.geojson") && err.contains("is not a UTM zone"),
+        err.contains("degrees.geojson") && err.contains("is not a projected CRS dsmstream knows"),
         "{err}"
     );
 }

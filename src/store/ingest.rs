@@ -36,9 +36,10 @@ pub struct IngestOptions {
     /// Re-ingest DSMs whose source did not change (and replace same-id DSMs
     /// that came from another file).
     pub force: bool,
-    /// The UTM zone DSMs in longitude and latitude are put into (default:
-    /// the collection's, or the zone of their centre).
-    pub utm_zone: Option<super::warp::ZoneChoice>,
+    /// The CRS DSMs in longitude and latitude or in other projected CRSs
+    /// are put into (`--utm-zone`, `--crs`; default: the collection's, or
+    /// the UTM zone of their centre).
+    pub target: Option<super::warp::CrsChoice>,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -174,8 +175,8 @@ pub fn ingest_with(
         progress.dsm_finished(outcome);
     }
     let paths: Vec<&Path> = todo.iter().map(|(f, _)| f.path.as_path()).collect();
-    let zone = super::warp::choose_zone(attrs.crs.as_ref(), options.utm_zone, &paths, open)?;
-    let open = &|path: &Path| super::warp::open_in_zone(open, zone, path);
+    let zone = super::warp::choose_zone(attrs.crs.as_ref(), options.target, &paths, open)?;
+    let open = &|path: &Path| super::warp::open_in_zone(open, zone.as_ref(), path);
     validate_all(store_path, &attrs, &todo, open)?;
     if !todo.is_empty() {
         let created = create_store(store_path)?;

@@ -82,7 +82,7 @@ pub(super) fn options(chunk: u64) -> IngestOptions {
             min_overview_px: 8,
         },
         force: false,
-        utm_zone: None,
+        target: None,
     }
 }
 

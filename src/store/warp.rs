@@ -1,15 +1,17 @@
 //! DSMs delivered in longitude and latitude (SRTM, Copernicus, ALOS, NASADEM:
-//! the global DSMs), and DSMs in a neighbouring UTM zone on the same datum (a
-//! collection across a zone boundary), are put into the collection's UTM zone
-//! as they are read, so they register in metres with the rest of it.
+//! the global DSMs), and DSMs in another projected CRS on the same datum (a
+//! neighbouring UTM zone, a national or polar grid: [`ProjectedCrs`]), are put
+//! into the collection's CRS as they are read, so they register in metres
+//! with the rest of it.
 //!
-//! One zone per run ([`choose_zone`]): the zone `--utm-zone` names, else the
-//! collection's when it is already in a UTM zone on the same datum (the
-//! store's, else the first projected input's), else the zone of the centre of
-//! the geographic inputs. Each input in degrees or in another zone becomes a
-//! [`WarpSource`]: a [`RowSource`] that hands out rows of a north-up grid in
-//! the zone, with square pixels as fine as the source's finer axis there
-//! (degrees: two significant digits; another zone: its own pixel), snapped
+//! One CRS per run ([`choose_zone`]): the UTM zone `--utm-zone` names, else
+//! the collection's CRS when [`ProjectedCrs`] knows it and it is on the same
+//! datum (the store's, else the first projected input's), else the UTM zone
+//! of the centre of the geographic inputs. Each input in degrees or in
+//! another known CRS becomes a [`WarpSource`]: a [`RowSource`] that hands out
+//! rows of a north-up grid in the collection's CRS, with square pixels as
+//! fine as the source's finer axis there (degrees: two significant digits;
+//! another projected CRS: its own pixel), snapped
 //! to multiples of the pixel, each pixel the bilinear interpolation of the
 //! source at its centre (GDAL's `-r bilinear`; where a neighbour is no-data
 //! the weights of the others are used, and a pixel whose nearest source
@@ -22,7 +24,8 @@ use rayon::prelude::*;
 
 use super::ingest::IngestError;
 use super::source::{RowSource, SourceError, SourceOpener, SourceRaster};
-use crate::geo::tm::{TransverseMercator, Utm};
+use crate::geo::proj::{ProjectedCrs, Projection};
+use crate::geo::tm::{Datum, Ellipsoid, Utm};
 use crate::geo::{Crs, GeoTransform};
 use crate::geotiff::equivalent::{code, geographic_datum};
 
@@ -35,6 +38,55 @@ const KNOT_STEP: usize = 16;
 const MAX_FROM_MERIDIAN_DEG: f64 = 15.0;
 /// UTM's limits of latitude.
 const MAX_LATITUDE_DEG: f64 = 84.0;
+/// Largest scale error ([`Projection::scale_error`]) over a DSM's footprint
+/// put into a CRS other than UTM (3.9 % for NSIDC's polar stereographic at
+/// 60 N; UTM reaches 3.5 % at its limit above).
+const MAX_SCALE_ERROR: f64 = 0.05;
+
+/// The CRS asked for on the command line: a UTM zone (`--utm-zone 37N`, on
+/// the datum of the inputs) or a CRS by its EPSG code (`--crs EPSG:3413`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CrsChoice {
+    Zone(ZoneChoice),
+    /// A code [`ProjectedCrs::from_epsg`] knows.
+    Epsg(u32),
+}
+
+impl CrsChoice {
+    /// `EPSG:3413`, `epsg:3413` or `3413`, when [`ProjectedCrs`] knows it.
+    pub fn parse_epsg(text: &str) -> Option<CrsChoice> {
+        let text = text.trim();
+        let digits = (text.get(..5))
+            .filter(|p| p.eq_ignore_ascii_case("EPSG:"))
+            .map_or(text, |_| &text[5..]);
+        let code: u32 = digits.parse().ok()?;
+        ProjectedCrs::from_epsg(code)?.epsg?;
+        Some(CrsChoice::Epsg(code))
+    }
+
+    /// The flag that asked for it, as typed ("--utm-zone 37N").
+    fn flag(&self) -> String {
+        match self {
+            CrsChoice::Zone(z) => {
+                let hemisphere = if z.north { 'N' } else { 'S' };
+                format!("--utm-zone {}{hemisphere}", z.zone)
+            }
+            CrsChoice::Epsg(code) => format!("--crs EPSG:{code}"),
+        }
+    }
+
+    /// The CRS, a UTM zone on `datum`.
+    fn on(&self, datum: Datum) -> ProjectedCrs {
+        match *self {
+            CrsChoice::Zone(ZoneChoice { zone, north }) => {
+                ProjectedCrs::utm(Utm { datum, zone, north })
+            }
+            CrsChoice::Epsg(code) => {
+                ProjectedCrs::from_epsg(code).expect("a code checked by parse_epsg")
+            }
+        }
+    }
+}
 
 /// A UTM zone asked for on the command line: "37N", "33S".
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -59,16 +111,21 @@ impl ZoneChoice {
     }
 }
 
-/// The UTM zone this run puts its inputs in degrees and in other zones into,
-/// or `None` when no input needs one (none in longitude and latitude on WGS
-/// 84, NAD83 or ETRS89, and no collection zone for UTM inputs of other zones;
-/// others are refused later by the header checks).
+/// The projected CRS [`ProjectedCrs`] knows that `crs` is, by its code.
+fn known(crs: &Crs) -> Option<ProjectedCrs> {
+    code(crs).and_then(ProjectedCrs::from_epsg)
+}
+
+/// The CRS this run puts its inputs in degrees and in other projected CRSs
+/// into, or `None` when no input needs one (none in longitude and latitude on
+/// WGS 84, NAD83 or ETRS89, and none in another known CRS on the
+/// collection's datum; others are refused later by the header checks).
 pub(super) fn choose_zone(
     collection: Option<&Crs>,
-    forced: Option<ZoneChoice>,
+    forced: Option<CrsChoice>,
     paths: &[&Path],
     open: &SourceOpener,
-) -> Result<Option<Utm>, IngestError> {
+) -> Result<Option<ProjectedCrs>, IngestError> {
     let mut collection = collection.cloned();
     let (mut datum, mut zones) = (None, Vec::new());
     let (mut lon, mut lat) = (
@@ -81,7 +138,7 @@ pub(super) fn choose_zone(
         let Some(d) = geographic_datum(&raster.crs) else {
             if !raster.crs.is_geographic {
                 collection.get_or_insert_with(|| raster.crs.clone());
-                zones.extend(code(&raster.crs).and_then(Utm::from_epsg));
+                zones.extend(known(&raster.crs));
             }
             continue;
         };
@@ -90,57 +147,71 @@ pub(super) fn choose_zone(
         lon = (lon.0.min(b[0]), lon.1.max(b[2]));
         lat = (lat.0.min(b[1]), lat.1.max(b[3]));
     }
-    let collection_zone = (collection.as_ref())
-        .and_then(code)
-        .and_then(Utm::from_epsg);
+    let collection_crs = collection.as_ref().and_then(known);
     let Some(datum) = datum else {
-        // no input in degrees: a zone for the UTM inputs of other zones
-        let datum = collection_zone.or(zones.first().copied()).map(|u| u.datum);
+        // no input in degrees: a CRS for the inputs in other known CRSs
+        let datum = (collection_crs.as_ref().or(zones.first())).map(|u| u.datum);
         let chosen = match (forced, datum) {
-            (Some(ZoneChoice { zone, north }), Some(datum)) => Some(Utm { datum, zone, north }),
-            _ => collection_zone,
+            (Some(choice @ CrsChoice::Epsg(_)), _) => Some(choice.on(Datum::Wgs84)),
+            (Some(choice), Some(datum)) => Some(choice.on(datum)),
+            _ => collection_crs,
         };
-        let moves = |to: Utm| zones.iter().any(|u| u.datum == to.datum && *u != to);
-        if let Some(z) = forced.filter(|_| !chosen.is_some_and(moves)) {
-            let hemisphere = if z.north { 'N' } else { 'S' };
+        let moves = |to: &ProjectedCrs| zones.iter().any(|u| u.datum == to.datum && u != to);
+        if let Some(choice) = forced.filter(|_| !chosen.as_ref().is_some_and(moves)) {
             tracing::warn!(
-                "--utm-zone {}{hemisphere} has no effect: no DSM to ingest is in longitude and latitude or in another UTM zone",
-                z.zone
+                "{} has no effect: no DSM to ingest is in longitude and latitude or in another projected CRS on its datum",
+                choice.flag()
             );
         }
-        return Ok(chosen.filter(|&to| moves(to)));
+        return Ok(chosen.filter(moves));
     };
-    if let Some(ZoneChoice { zone, north }) = forced {
-        return Ok(Some(Utm { datum, zone, north }));
+    if let Some(choice) = forced {
+        let chosen = choice.on(datum);
+        if chosen.datum != datum {
+            let message = format!(
+                "{} is on {}, and the DSMs in longitude and latitude are on {}: choose a CRS on their datum",
+                choice.flag(),
+                chosen.datum.name(),
+                datum.name()
+            );
+            return Err(IngestError::BadInput(message));
+        }
+        return Ok(Some(chosen));
     }
-    let collection_zone = collection_zone.filter(|u| u.datum == datum);
-    Ok(Some(collection_zone.unwrap_or_else(|| {
-        Utm::containing(datum, 0.5 * (lon.0 + lon.1), 0.5 * (lat.0 + lat.1))
+    let collection_crs = collection_crs.filter(|u| u.datum == datum);
+    Ok(Some(collection_crs.unwrap_or_else(|| {
+        ProjectedCrs::utm(Utm::containing(
+            datum,
+            0.5 * (lon.0 + lon.1),
+            0.5 * (lat.0 + lat.1),
+        ))
     })))
 }
 
-/// The frame a source is put into `zone` from: longitude and latitude on the
-/// zone's datum, or another UTM zone on it; `None`: the source is read as it
-/// is (already in the zone, or in a CRS the header checks judge).
-fn source_frame(crs: &Crs, zone: Utm) -> Option<Frame> {
-    if geographic_datum(crs) == Some(zone.datum) {
+/// The frame a source is put into `target` from: longitude and latitude on
+/// the target's datum, or another known projected CRS on it; `None`: the
+/// source is read as it is (already in the target CRS, or in a CRS the
+/// header checks judge).
+fn source_frame(crs: &Crs, target: &ProjectedCrs) -> Option<Frame> {
+    if geographic_datum(crs) == Some(target.datum) {
         return Some(Frame::Degrees);
     }
-    let utm = code(crs).and_then(Utm::from_epsg)?;
-    (utm.datum == zone.datum && utm != zone).then(|| Frame::Zone(utm.projection()))
+    let from = known(crs)?;
+    (from.datum == target.datum && from != *target).then_some(Frame::Projected(from.projection))
 }
 
-/// `open`, with sources in longitude and latitude, or in another UTM zone,
-/// on `zone`'s datum put into `zone`; other sources as they are.
+/// `open`, with sources in longitude and latitude, or in another known
+/// projected CRS, on `target`'s datum put into `target`; other sources as
+/// they are.
 pub(super) fn open_in_zone(
     open: &SourceOpener,
-    zone: Option<Utm>,
+    target: Option<&ProjectedCrs>,
     path: &Path,
 ) -> Result<Box<dyn RowSource>, SourceError> {
     let source = open(path)?;
-    match zone {
-        Some(zone) if source_frame(&source.raster().crs, zone).is_some() => {
-            Ok(Box::new(WarpSource::new(source, zone)?))
+    match target {
+        Some(target) if source_frame(&source.raster().crs, target).is_some() => {
+            Ok(Box::new(WarpSource::new(source, target)?))
         }
         _ => Ok(source),
     }
@@ -163,8 +234,8 @@ pub struct Warped {
 pub(crate) enum Frame {
     /// Longitude and latitude, degrees.
     Degrees,
-    /// Easting and northing of another UTM zone (same datum), metres.
-    Zone(TransverseMercator),
+    /// Easting and northing of another projected CRS (same datum), metres.
+    Projected(Projection),
 }
 
 impl Frame {
@@ -172,7 +243,7 @@ impl Frame {
     fn to_lonlat(&self, x: f64, y: f64) -> (f64, f64) {
         match self {
             Frame::Degrees => (x, y),
-            Frame::Zone(tm) => tm.inverse(x, y),
+            Frame::Projected(p) => p.inverse(x, y),
         }
     }
 
@@ -180,7 +251,7 @@ impl Frame {
     fn of_lonlat(&self, lon: f64, lat: f64) -> (f64, f64) {
         match self {
             Frame::Degrees => (lon, lat),
-            Frame::Zone(tm) => tm.forward(lon, lat),
+            Frame::Projected(p) => p.forward(lon, lat),
         }
     }
 }
@@ -198,49 +269,43 @@ pub struct WarpSource {
 }
 
 impl WarpSource {
-    pub fn new(inner: Box<dyn RowSource>, zone: Utm) -> Result<WarpSource, SourceError> {
+    pub fn new(
+        inner: Box<dyn RowSource>,
+        target: &ProjectedCrs,
+    ) -> Result<WarpSource, SourceError> {
         let src = inner.raster().clone();
         let bad = |message: String| SourceError {
             message: format!("{}: {message}", src.path.display()),
             bad_input: true,
         };
-        let code = zone.epsg().ok_or_else(|| {
+        let code = target.epsg.ok_or_else(|| {
             bad(format!(
                 "{} has no EPSG code to put this DSM into; choose another zone (--utm-zone) or reproject first",
-                zone.label()
+                target.label()
             ))
         })?;
-        let frame = source_frame(&src.crs, zone).ok_or_else(|| {
+        let frame = source_frame(&src.crs, target).ok_or_else(|| {
             bad(format!(
-                "CRS {} is neither longitude and latitude nor another UTM zone on {}",
+                "CRS {} is neither longitude and latitude nor another projected CRS dsmstream knows on {}",
                 src.crs.label(),
-                zone.datum.name()
+                target.datum.name()
             ))
         })?;
         let gt = src.geotransform;
-        let [lon0, lat0, lon1, lat1] = lonlat_bounds(&frame, &gt, src.width, src.height);
-        let meridian = -183.0 + 6.0 * f64::from(zone.zone);
-        let centre_lon = 0.5 * (lon0 + lon1);
-        let from_meridian =
-            ((centre_lon - meridian + 540.0).rem_euclid(360.0) - 180.0).abs() + 0.5 * (lon1 - lon0);
-        let finite = [lon0, lat0, lon1, lat1].iter().all(|v| v.is_finite());
-        if !(gt.is_north_up() && finite)
-            || lat0 < -MAX_LATITUDE_DEG
-            || lat1 > MAX_LATITUDE_DEG
-            || from_meridian > MAX_FROM_MERIDIAN_DEG
-        {
-            return Err(bad(format!(
-                "its footprint (longitude {lon0:.4} to {lon1:.4}, latitude {lat0:.4} to {lat1:.4}) cannot be put into {}: UTM needs latitudes within {MAX_LATITUDE_DEG} degrees and longitudes within {MAX_FROM_MERIDIAN_DEG} degrees of the zone's central meridian {meridian}; choose the zone (--utm-zone) or reproject first (gdalwarp -t_srs EPSG:...)",
-                zone.label()
-            )));
-        }
-        let crs = crate::geotiff::geokeys::utm_crs(&zone, &src.crs)
-            .ok_or_else(|| bad(format!("cannot describe {} as GeoTIFF keys", zone.label())))?;
-        let tm = zone.projection();
-        let (grid, width, height) = output_grid(&tm, &frame, &gt, (src.width, src.height), zone);
+        within_reach(&frame, &gt, (src.width, src.height), target).map_err(bad)?;
+        let crs = crate::geotiff::geokeys::projected_crs(code, &src.crs).ok_or_else(|| {
+            bad(format!(
+                "cannot describe {} as GeoTIFF keys",
+                target.label()
+            ))
+        })?;
+        let projection = &target.projection;
+        let ellipsoid = target.datum.ellipsoid();
+        let (grid, width, height) =
+            output_grid(projection, &frame, &gt, (src.width, src.height), ellipsoid);
         let warped = Warped {
             from: src.crs.label(),
-            to: format!("EPSG:{code}, {}", zone.label()),
+            to: target.label(),
             pixel_m: grid.gsd_x(),
         };
         let raster = SourceRaster {
@@ -250,8 +315,8 @@ impl WarpSource {
             crs,
             ..src.clone()
         };
-        let mapping =
-            Mapping::new(tm, grid, width as usize, gt, src.width).in_frame(frame, src.width);
+        let mapping = Mapping::new(projection.clone(), grid, width as usize, gt, src.width)
+            .in_frame(frame, src.width);
         Ok(WarpSource {
             inner,
             raster,
@@ -263,10 +328,66 @@ impl WarpSource {
     }
 }
 
+/// Whether a raster's footprint (placed by `gt` in `frame`) can be put into
+/// `target`: for a UTM zone, latitudes within [`MAX_LATITUDE_DEG`] and
+/// longitudes within [`MAX_FROM_MERIDIAN_DEG`] of its meridian; for another
+/// CRS, a scale error within [`MAX_SCALE_ERROR`] all along its edges.
+fn within_reach(
+    frame: &Frame,
+    gt: &GeoTransform,
+    (width, height): (u64, u64),
+    target: &ProjectedCrs,
+) -> Result<(), String> {
+    let [lon0, lat0, lon1, lat1] = lonlat_bounds(frame, gt, width, height);
+    let finite = [lon0, lat0, lon1, lat1].iter().all(|v| v.is_finite());
+    let footprint = format!(
+        "its footprint (longitude {lon0:.4} to {lon1:.4}, latitude {lat0:.4} to {lat1:.4}) cannot be put into {}",
+        target.label()
+    );
+    let Some(zone) = target.utm else {
+        let ellipsoid = target.datum.ellipsoid();
+        let mut worst = if gt.is_north_up() && finite {
+            0.0_f64
+        } else {
+            f64::INFINITY
+        };
+        for_edge_points(gt, width, height, |x, y| {
+            let (lon, lat) = frame.to_lonlat(x, y);
+            let error = target.projection.scale_error(ellipsoid, lon, lat);
+            worst = worst.max(if error.is_finite() {
+                error
+            } else {
+                f64::INFINITY
+            });
+        });
+        if worst <= MAX_SCALE_ERROR {
+            return Ok(());
+        }
+        let percent = 100.0 * MAX_SCALE_ERROR;
+        return Err(format!(
+            "{footprint}: its scale there is off by more than {percent} % (the CRS is not meant for this place); reproject first (gdalwarp -t_srs EPSG:...)"
+        ));
+    };
+    let meridian = -183.0 + 6.0 * f64::from(zone.zone);
+    let centre_lon = 0.5 * (lon0 + lon1);
+    let from_meridian =
+        ((centre_lon - meridian + 540.0).rem_euclid(360.0) - 180.0).abs() + 0.5 * (lon1 - lon0);
+    if !(gt.is_north_up() && finite)
+        || lat0 < -MAX_LATITUDE_DEG
+        || lat1 > MAX_LATITUDE_DEG
+        || from_meridian > MAX_FROM_MERIDIAN_DEG
+    {
+        return Err(format!(
+            "{footprint}: UTM needs latitudes within {MAX_LATITUDE_DEG} degrees and longitudes within {MAX_FROM_MERIDIAN_DEG} degrees of the zone's central meridian {meridian}; choose the zone (--utm-zone) or reproject first (gdalwarp -t_srs EPSG:...)"
+        ));
+    }
+    Ok(())
+}
+
 /// Where each output pixel's centre falls in the source.
 pub(crate) struct Mapping {
-    tm: TransverseMercator,
-    /// The output grid (UTM) and its width.
+    projection: Projection,
+    /// The output grid (in `projection`) and its width.
     grid: GeoTransform,
     width: usize,
     /// The source's geotransform (degrees).
@@ -279,10 +400,11 @@ pub(crate) struct Mapping {
 }
 
 impl Mapping {
-    /// The mapping of `grid` (`width` cells across, in `tm`'s metres) into a
-    /// raster in degrees placed by `source_gt` (see [`Mapping::in_frame`]).
+    /// The mapping of `grid` (`width` cells across, in `projection`'s metres)
+    /// into a raster in degrees placed by `source_gt` (see
+    /// [`Mapping::in_frame`]).
     fn new(
-        tm: TransverseMercator,
+        projection: Projection,
         grid: GeoTransform,
         width: usize,
         source_gt: GeoTransform,
@@ -290,7 +412,7 @@ impl Mapping {
     ) -> Mapping {
         let centre_lon = source_gt.pixel_to_world(0.5 * source_width as f64, 0.0).0;
         Mapping {
-            tm,
+            projection,
             grid,
             width,
             source_gt,
@@ -316,7 +438,7 @@ impl Mapping {
         let knot: Vec<(f64, f64)> = (0..knots)
             .map(|k| {
                 let (e, n) = gt.pixel_to_world((k * KNOT_STEP) as f64 + 0.5, row as f64 + 0.5);
-                let (lon, lat) = self.tm.inverse(e, n);
+                let (lon, lat) = self.projection.inverse(e, n);
                 let lon = lon + 360.0 * ((self.centre_lon - lon) / 360.0).round();
                 let (x, y) = self.frame.of_lonlat(lon, lat);
                 let (u, v) = self.source_gt.world_to_pixel(x, y);
@@ -332,29 +454,26 @@ impl Mapping {
     }
 }
 
-/// The output grid of a source in longitude and latitude, or in another UTM
-/// zone: square pixels of the source's finer axis at its centre (degrees: two
-/// significant digits; metres: the source's own), the projected footprint
-/// snapped outwards to multiples of the pixel.
+/// The output grid of a source in longitude and latitude, or in another
+/// projected CRS: square pixels of the source's finer axis at its centre
+/// (degrees: two significant digits; metres: the source's own), the
+/// projected footprint snapped outwards to multiples of the pixel.
 fn output_grid(
-    tm: &TransverseMercator,
+    projection: &Projection,
     frame: &Frame,
     gt: &GeoTransform,
     (width, height): (u64, u64),
-    zone: Utm,
+    ellipsoid: Ellipsoid,
 ) -> (GeoTransform, u64, u64) {
     let pixel = match frame {
         Frame::Degrees => {
             let [_, lat0, _, lat1] = gt.bounds(width, height);
-            let per = zone
-                .datum
-                .ellipsoid()
-                .metres_per_degree(0.5 * (lat0 + lat1));
+            let per = ellipsoid.metres_per_degree(0.5 * (lat0 + lat1));
             round_to_two_digits((gt.gsd_x() * per.0).min(gt.gsd_y() * per.1))
         }
-        Frame::Zone(_) => gt.gsd_x().min(gt.gsd_y()),
+        Frame::Projected(_) => gt.gsd_x().min(gt.gsd_y()),
     };
-    let [e0, n0, e1, n1] = footprint_in(tm, frame, gt, width, height);
+    let [e0, n0, e1, n1] = footprint_in(projection, frame, gt, width, height);
     let (x0, y1) = ((e0 / pixel).floor() * pixel, (n1 / pixel).ceil() * pixel);
     let w = ((e1 - x0) / pixel).ceil().max(1.0) as u64;
     let h = ((y1 - n0) / pixel).ceil().max(1.0) as u64;
@@ -366,7 +485,7 @@ fn output_grid(
 fn lonlat_bounds(frame: &Frame, gt: &GeoTransform, width: u64, height: u64) -> [f64; 4] {
     match frame {
         Frame::Degrees => gt.bounds(width, height),
-        Frame::Zone(_) => edge_box(gt, width, height, |x, y| frame.to_lonlat(x, y)),
+        Frame::Projected(_) => edge_box(gt, width, height, |x, y| frame.to_lonlat(x, y)),
     }
 }
 
@@ -378,22 +497,29 @@ fn edge_box(
     height: u64,
     f: impl Fn(f64, f64) -> (f64, f64),
 ) -> [f64; 4] {
-    let [x0, y0, x1, y1] = gt.bounds(width, height);
     let mut b = [
         f64::INFINITY,
         f64::INFINITY,
         f64::NEG_INFINITY,
         f64::NEG_INFINITY,
     ];
+    for_edge_points(gt, width, height, |u, v| {
+        let (p, q) = f(u, v);
+        b = [b[0].min(p), b[1].min(q), b[2].max(p), b[3].max(q)];
+    });
+    b
+}
+
+/// `f` at [`EDGE_POINTS`] + 1 points along each edge of a raster's footprint.
+fn for_edge_points(gt: &GeoTransform, width: u64, height: u64, mut f: impl FnMut(f64, f64)) {
+    let [x0, y0, x1, y1] = gt.bounds(width, height);
     for i in 0..=EDGE_POINTS {
         let t = i as f64 / EDGE_POINTS as f64;
         let (x, y) = (x0 + t * (x1 - x0), y0 + t * (y1 - y0));
         for (u, v) in [(x, y0), (x, y1), (x0, y), (x1, y)] {
-            let (p, q) = f(u, v);
-            b = [b[0].min(p), b[1].min(q), b[2].max(p), b[3].max(q)];
+            f(u, v);
         }
     }
-    b
 }
 
 /// Points per edge at which footprints are projected.
@@ -402,7 +528,7 @@ const EDGE_POINTS: usize = 64;
 /// The box (min E, min N, max E, max N) holding the projected footprint of a
 /// raster in `frame`.
 fn footprint_in(
-    tm: &TransverseMercator,
+    projection: &Projection,
     frame: &Frame,
     gt: &GeoTransform,
     width: u64,
@@ -410,31 +536,31 @@ fn footprint_in(
 ) -> [f64; 4] {
     edge_box(gt, width, height, |x, y| {
         let (lon, lat) = frame.to_lonlat(x, y);
-        tm.forward(lon, lat)
+        projection.forward(lon, lat)
     })
 }
 
-/// How a raster in longitude and latitude, or in another UTM zone, is put
-/// into a collection's UTM zone ([`projection_into`]): for `eval
-/// --reference` and masks, which project points and sample rasters without
-/// ingesting them.
+/// How a raster in longitude and latitude, or in another projected CRS, is
+/// put into a collection's CRS ([`projection_into`]): for `eval --reference`
+/// and masks, which project points and sample rasters without ingesting
+/// them.
 #[derive(Clone, Debug)]
 pub struct IntoZone {
-    tm: TransverseMercator,
+    projection: Projection,
     frame: Frame,
 }
 
 impl IntoZone {
-    /// The zone's coordinates of a point of the raster's frame.
+    /// The collection CRS's coordinates of a point of the raster's frame.
     pub fn forward(&self, x: f64, y: f64) -> (f64, f64) {
         let (lon, lat) = self.frame.to_lonlat(x, y);
-        self.tm.forward(lon, lat)
+        self.projection.forward(lon, lat)
     }
 
     /// The box (min E, min N, max E, max N) in the zone holding the footprint
     /// of a raster placed by `gt` (its edges at [`EDGE_POINTS`] points each).
     pub fn bounds(&self, gt: &GeoTransform, width: u64, height: u64) -> [f64; 4] {
-        footprint_in(&self.tm, &self.frame, gt, width, height)
+        footprint_in(&self.projection, &self.frame, gt, width, height)
     }
 
     /// Where the cell centres of `grid` (`width` cells across, in the zone)
@@ -446,33 +572,46 @@ impl IntoZone {
         source_gt: GeoTransform,
         source_width: u64,
     ) -> Mapping {
-        Mapping::new(self.tm.clone(), grid, width, source_gt, source_width)
-            .in_frame(self.frame.clone(), source_width)
+        Mapping::new(
+            self.projection.clone(),
+            grid,
+            width,
+            source_gt,
+            source_width,
+        )
+        .in_frame(self.frame.clone(), source_width)
     }
 }
 
 /// How a raster in `crs` is put into `collection`'s CRS: `Some` when
-/// `collection` is a UTM zone and `crs` longitude and latitude on its datum
-/// (WGS 84, NAD83 or ETRS89) or another UTM zone on it.
+/// [`ProjectedCrs`] knows `collection` and `crs` is longitude and latitude on
+/// its datum (WGS 84, NAD83 or ETRS89) or another known CRS on it.
 pub fn projection_into(crs: &Crs, collection: &Crs) -> Option<IntoZone> {
-    let zone = code(collection).and_then(Utm::from_epsg)?;
-    let frame = source_frame(crs, zone)?;
+    let target = known(collection)?;
+    let frame = source_frame(crs, &target)?;
     Some(IntoZone {
-        tm: zone.projection(),
+        projection: target.projection,
         frame,
     })
 }
 
-/// How coordinates of the UTM zone whose EPSG code is `epsg` are put into
-/// `collection`'s UTM zone: `Some` when both are UTM zones on one datum and
-/// differ (a mask's polygons that name their CRS by code).
+/// How coordinates of the CRS whose EPSG code is `epsg` are put into
+/// `collection`'s CRS: `Some` when [`ProjectedCrs`] knows both, they are on
+/// one datum, and they differ (a mask's polygons that name their CRS by
+/// code).
 pub fn zone_into(epsg: u32, collection: &Crs) -> Option<IntoZone> {
-    let from = Utm::from_epsg(epsg)?;
-    let zone = code(collection).and_then(Utm::from_epsg)?;
-    (from.datum == zone.datum && from != zone).then(|| IntoZone {
-        tm: zone.projection(),
-        frame: Frame::Zone(from.projection()),
+    let from = ProjectedCrs::from_epsg(epsg)?;
+    let target = known(collection)?;
+    (from.datum == target.datum && from != target).then_some(IntoZone {
+        projection: target.projection,
+        frame: Frame::Projected(from.projection),
     })
+}
+
+/// The projection of `collection`'s CRS when [`ProjectedCrs`] knows it (to
+/// put longitudes and latitudes into it).
+pub fn projection_of(collection: &Crs) -> Option<Projection> {
+    known(collection).map(|target| target.projection)
 }
 
 /// `x` rounded to two significant digits (71.4 -> 71, 0.926 -> 0.93).
@@ -635,8 +774,11 @@ mod tests {
             })
             .collect();
         let zone = Utm::from_epsg(32637).unwrap();
-        let mut warp =
-            WarpSource::new(Box::new(geographic(lon0, lat1, deg, w, h, data)), zone).unwrap();
+        let mut warp = WarpSource::new(
+            Box::new(geographic(lon0, lat1, deg, w, h, data)),
+            &ProjectedCrs::utm(zone),
+        )
+        .unwrap();
         let r = warp.raster().clone();
         assert_eq!(r.crs.epsg, Some(32637));
         // 3" pixels at 39.66 N: 71.5 m across, 92.5 m along the meridian
@@ -703,43 +845,45 @@ mod tests {
     /// collection across the boundary): a plane in 37N's metres comes out as
     /// that plane at each 38N pixel's own position (bilinear is exact on a
     /// plane), at the source's own 30 m pixel, snapped.
-    #[test]
-    fn a_neighbouring_zone_is_put_into_the_zone_at_each_pixels_position() {
+    /// A plane in the projected CRS `from` (30 m pixels, its north-west
+    /// corner at `corner` degrees) put into `to`: each output pixel is the
+    /// plane at its own centre's position in `from`, and no-data outside.
+    fn a_plane_between_crss(from: u32, to: u32, corner: (f64, f64)) {
         let (w, h, px) = (200u64, 150u64, 30.0);
-        let from = Utm::from_epsg(32637).unwrap();
-        let (e0, n1) = from.projection().forward(41.5, 39.7);
+        let proj_from = ProjectedCrs::from_epsg(from).unwrap().projection;
+        let (e0, n1) = proj_from.forward(corner.0, corner.1);
         let (e0, n1) = ((e0 / px).round() * px, (n1 / px).round() * px);
         let plane = |e: f64, n: f64| 1000.0 + 0.05 * (e - e0) - 0.03 * (n - n1);
         let data = (0..h)
             .flat_map(|r| (0..w).map(move |c| (r, c)))
             .map(|(r, c)| plane(e0 + (c as f64 + 0.5) * px, n1 - (r as f64 + 0.5) * px) as f32)
             .collect();
+        let code = crate::geotiff::geokeys::GeoKeyValue::Short(from as u16);
         let crs = crate::geotiff::geokeys::crs_from_entries(vec![
             (1024, crate::geotiff::geokeys::GeoKeyValue::Short(1)),
-            (3072, crate::geotiff::geokeys::GeoKeyValue::Short(32637)),
+            (3072, code),
         ])
         .unwrap();
         let mut source = geographic(e0, n1, px, w, h, data);
         source.raster.crs = crs;
-        let to = Utm::from_epsg(32638).unwrap();
+        let target = ProjectedCrs::from_epsg(to).unwrap();
         assert!(
-            source_frame(&source.raster.crs, from).is_none(),
-            "its own zone"
+            source_frame(&source.raster.crs, &ProjectedCrs::from_epsg(from).unwrap()).is_none(),
+            "its own CRS"
         );
-        let mut warp = WarpSource::new(Box::new(source), to).unwrap();
+        let mut warp = WarpSource::new(Box::new(source), &target).unwrap();
         let r = warp.raster().clone();
-        assert_eq!(r.crs.epsg, Some(32638));
+        assert_eq!(r.crs.epsg, Some(to));
         assert_eq!(r.geotransform.gsd_x(), 30.0);
         assert_eq!(r.geotransform.0[0] % 30.0, 0.0);
-        assert_eq!(warp.warped().unwrap().from, "EPSG:32637");
+        assert_eq!(warp.warped().unwrap().from, format!("EPSG:{from}"));
         let values = warp.read_rows(0, r.height).unwrap();
-        let (tm_to, tm_from) = (to.projection(), from.projection());
         let mut inside = 0;
         for row in 0..r.height {
             for col in 0..r.width {
                 let (e, n) = (r.geotransform).pixel_to_world(col as f64 + 0.5, row as f64 + 0.5);
-                let (lon, lat) = tm_to.inverse(e, n);
-                let (x, y) = tm_from.forward(lon, lat);
+                let (lon, lat) = target.projection.inverse(e, n);
+                let (x, y) = proj_from.forward(lon, lat);
                 let (u, v) = ((x - e0) / px - 0.5, (n1 - y) / px - 0.5);
                 let z = values[(row * r.width + col) as usize];
                 if u > 0.0 && v > 0.0 && u < (w - 1) as f64 && v < (h - 1) as f64 {
@@ -747,16 +891,47 @@ mod tests {
                     let want = plane(x, y);
                     assert!(
                         (f64::from(z) - want).abs() < 2e-3,
-                        "({col}, {row}): {z} / {want}"
+                        "EPSG:{from} to {to} ({col}, {row}): {z} / {want}"
                     );
                 } else if u < -0.5 || v < -0.5 || u > w as f64 - 0.5 || v > h as f64 - 0.5 {
                     assert!(z.is_nan(), "({col}, {row}) outside the source: {z}");
                 }
             }
         }
-        // the grid is turned by the two zones' convergences (1.6 and -2.2
-        // degrees): about 0.87 of the output box is inside
-        assert!(inside as u64 > r.width * r.height * 8 / 10, "{inside}");
+        // the grid is turned by the two CRSs' convergences: a box around it
+        assert!(inside as u64 > r.width * r.height * 4 / 10, "{inside}");
+    }
+
+    #[test]
+    fn a_neighbouring_zone_is_put_into_the_zone_at_each_pixels_position() {
+        // 1.6 and -2.2 degrees of convergence
+        a_plane_between_crss(32637, 32638, (41.5, 39.7));
+    }
+
+    #[test]
+    fn utm_and_polar_and_national_grids_are_put_into_one_another() {
+        // Svalbard: UTM 33N into NSIDC's polar stereographic (turned by 60
+        // degrees) and back; Arctic polar stereographic into it
+        a_plane_between_crss(32633, 3413, (15.5, 78.2));
+        a_plane_between_crss(3413, 32633, (15.5, 78.2));
+        a_plane_between_crss(3995, 3413, (15.5, 78.2));
+        // France: ETRS89 / UTM 31N into Lambert-93; LAEA Europe into it
+        a_plane_between_crss(25831, 2154, (2.3, 48.9));
+        a_plane_between_crss(3035, 2154, (2.3, 48.9));
+        // Antarctica; the United States
+        a_plane_between_crss(32758, 3031, (166.7, -77.8));
+        a_plane_between_crss(26913, 5070, (-105.3, 40.0));
+    }
+
+    #[test]
+    fn a_crs_on_another_datum_is_not_put_into_it() {
+        let target = ProjectedCrs::from_epsg(2154).unwrap();
+        let wgs84_utm = crate::geotiff::geokeys::crs_from_entries(vec![
+            (1024, crate::geotiff::geokeys::GeoKeyValue::Short(1)),
+            (3072, crate::geotiff::geokeys::GeoKeyValue::Short(32631)),
+        ])
+        .unwrap();
+        assert!(source_frame(&wgs84_utm, &target).is_none());
     }
 
     #[test]
@@ -765,9 +940,9 @@ mod tests {
         let data: Vec<f32> = (0..w * h)
             .map(|k| if k % w < 20 { f32::NAN } else { 50.0 })
             .collect();
-        let zone = Utm::from_epsg(32637).unwrap();
+        let zone = ProjectedCrs::from_epsg(32637).unwrap();
         let mut warp =
-            WarpSource::new(Box::new(geographic(40.0, 39.0, deg, w, h, data)), zone).unwrap();
+            WarpSource::new(Box::new(geographic(40.0, 39.0, deg, w, h, data)), &zone).unwrap();
         let r = warp.raster().clone();
         let values = warp.read_rows(0, r.height).unwrap();
         let valid: Vec<f32> = values.iter().copied().filter(|z| z.is_finite()).collect();
@@ -778,15 +953,57 @@ mod tests {
 
     #[test]
     fn footprints_utm_cannot_hold_are_refused_by_name() {
-        let zone = Utm::from_epsg(32637).unwrap();
+        let zone = ProjectedCrs::from_epsg(32637).unwrap();
         let far = geographic(80.0, 40.0, 0.01, 10, 10, vec![1.0; 100]);
-        let err = WarpSource::new(Box::new(far), zone).err().unwrap();
+        let err = WarpSource::new(Box::new(far), &zone).err().unwrap();
         assert!(
             err.bad_input && err.message.starts_with("geo.tif: its footprint"),
             "{}",
             err.message
         );
         let polar = geographic(39.0, 89.0, 0.01, 10, 10, vec![1.0; 100]);
-        assert!(WarpSource::new(Box::new(polar), zone).is_err());
+        assert!(WarpSource::new(Box::new(polar), &zone).is_err());
+    }
+
+    #[test]
+    fn footprints_a_polar_or_national_grid_cannot_hold_are_refused_by_name() {
+        // the tropics into NSIDC's north polar stereographic; southern France
+        // is fine in Lambert-93, Brazil is not in LAEA Europe
+        let on_datum = |mut source: MemSource, datum: Datum| {
+            let geographic = match datum {
+                Datum::Etrs89 => 4258,
+                _ => 4326,
+            };
+            source.raster.crs = crate::geotiff::geokeys::crs_from_entries(vec![
+                (1024, crate::geotiff::geokeys::GeoKeyValue::Short(2)),
+                (
+                    2048,
+                    crate::geotiff::geokeys::GeoKeyValue::Short(geographic),
+                ),
+            ])
+            .unwrap();
+            source
+        };
+        for (code, lon, lat) in [(3413, 40.0, 10.0), (3035, -50.0, -10.0), (3031, 0.0, 60.0)] {
+            let target = ProjectedCrs::from_epsg(code).unwrap();
+            let far = on_datum(
+                geographic(lon, lat, 0.01, 10, 10, vec![1.0; 100]),
+                target.datum,
+            );
+            let err = WarpSource::new(Box::new(far), &target).err().unwrap();
+            assert!(
+                err.bad_input
+                    && err.message.starts_with("geo.tif: its footprint")
+                    && err.message.contains("scale there is off by more than 5 %"),
+                "{}",
+                err.message
+            );
+        }
+        let lambert93 = ProjectedCrs::from_epsg(2154).unwrap();
+        let nice = on_datum(
+            geographic(7.2, 43.8, 0.001, 10, 10, vec![1.0; 100]),
+            Datum::Etrs89,
+        );
+        assert!(WarpSource::new(Box::new(nice), &lambert93).is_ok());
     }
 }

@@ -163,7 +163,7 @@ fn template_store() -> &'static Path {
                 ..Default::default()
             },
             force: false,
-            utm_zone: None,
+            target: None,
         };
         let inputs = [
             fixtures().join("synth/grid2x2/tile_00.tif"),

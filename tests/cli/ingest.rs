@@ -171,7 +171,7 @@ fn a_dsm_in_degrees_is_put_into_the_collections_utm_zone() {
     assert_eq!(dsm["source_dtype"], "Int16", "{dsm}");
     let table = text(&dsmstream(&["info", &store.display().to_string()]).stdout);
     assert!(
-        table.contains("put into UTM at ingest: srtm_ref (from EPSG:4326 at 72 m)"),
+        table.contains("reprojected at ingest: srtm_ref (from EPSG:4326 at 72 m)"),
         "{table}"
     );
     // degrees named only by an ESRI .prj beside a world file (no code: its
@@ -245,6 +245,60 @@ fn a_dsm_in_degrees_is_put_into_the_collections_utm_zone() {
     let bad_zone = ingest(&[&degrees], &other, &["--utm-zone", "61N"]);
     assert_eq!(bad_zone.status.code(), Some(2));
     assert!(text(&bad_zone.stderr).contains("not a UTM zone: \"61N\""));
+}
+
+/// `--crs` puts DSMs into a national or polar grid by its EPSG code:
+/// xdem-data's Svalbard crops (ETRS89 / UTM 33N) into LAEA Europe, where the
+/// two that share a lattice still pair to the identity; SRTM in degrees
+/// into NSIDC's polar stereographic is refused for its footprint (40 N),
+/// into Lambert-93 for its datum (WGS 84, not ETRS89), and a grid dsmstream
+/// does not know (British National Grid, OSGB36) as a bad flag.
+#[test]
+fn crs_puts_dsms_into_a_national_or_polar_grid_by_its_code() {
+    let tmp = tempfile::tempdir().unwrap();
+    let store = tmp.path().join("laea.zarr");
+    let out = ingest(&[&fixture("xdem_gdal")], &store, &["--crs", "EPSG:3035"]);
+    assert_ok(&out);
+    let said = text(&out.stdout);
+    assert_eq!(
+        said.matches(
+            "reprojected from EPSG:25833 to EPSG:3035, ETRS89-extended / LAEA Europe at 20 m"
+        )
+        .count(),
+        3,
+        "{said}"
+    );
+    let (code, doc) = crate::util::pair_json(
+        &store,
+        "shifted_reprojected_xoff200.0_yoff200.0",
+        "shifted_reprojected_xoff20.0_yoff20.0",
+    );
+    assert_eq!(code, Some(0), "{doc}");
+    // no move at the fit's centre
+    let (m, c) = (&doc["result"]["matrix_world"], &doc["result"]["centre_m"]);
+    let p: Vec<f64> = (0..3).map(|k| c[k].as_f64().unwrap()).collect();
+    for (k, p_k) in p.iter().enumerate() {
+        let moved = (0..3)
+            .map(|j| m[k][j].as_f64().unwrap() * p[j])
+            .sum::<f64>()
+            + m[k][3].as_f64().unwrap();
+        assert!((moved - p_k).abs() < 0.01, "{m} at {c}");
+    }
+    let degrees = fixture("demcompare_srtm/srtm_ref.tif");
+    let polar = tmp.path().join("polar.zarr");
+    for (flag, problem) in [
+        ("EPSG:3413", "cannot be put into EPSG:3413, WGS 84 / NSIDC Sea Ice Polar Stereographic North: its scale there is off by more than 5 %"),
+        ("EPSG:2154", "--crs EPSG:2154 is on ETRS89, and the DSMs in longitude and latitude are on WGS 84"),
+    ] {
+        let out = ingest(&[&degrees], &polar, &["--crs", flag]);
+        assert_eq!(out.status.code(), Some(2), "{flag}");
+        let err = text(&out.stderr);
+        assert!(err.lines().count() == 1 && err.contains(problem), "{flag}: {err}");
+        assert!(!polar.exists(), "{flag}: no store is left");
+    }
+    let unknown = ingest(&[&degrees], &polar, &["--crs", "EPSG:27700"]);
+    assert_eq!(unknown.status.code(), Some(2));
+    assert!(text(&unknown.stderr).contains("not a CRS dsmstream can put DSMs into"));
 }
 
 /// A 32 x 32 ramp of heights with this CRS and a pixel of `pixel` m from

@@ -340,6 +340,50 @@ fn a_zipped_srtm_tile_is_placed_by_its_name_and_registered() {
     assert_pair_moves(&store, ids, centre, truth, [5.0, 5.0, 1.0]);
 }
 
+/// A collection in a national grid: Tommy Thompson Park's 1 m lidar DSM
+/// moved by (+3, -2) m in UTM 17N and put by GDAL into NAD83 / Conus Albers
+/// (fixtures/national) makes the store's CRS; the park's own UTM 17N DSM
+/// (NAD83) is then put into Conus Albers as it is read, and the pair finds
+/// the move as Conus Albers sees it, PROJ's (+3.2626, -1.5233) m at the
+/// park's centre (turned by 8.7 degrees of convergence). Measured
+/// 2026-12-07: (+3.262, -1.521, -0.000) m, sigmas 0.05 / 0.05 / 0.005 m.
+/// The UTM raster as an `eval --reference` of the store is projected into
+/// Conus Albers too.
+#[test]
+fn a_utm_dsm_is_put_into_a_collections_national_grid_and_registered() {
+    let dir = tempfile::tempdir().unwrap();
+    let store = dir.path().join("albers.zarr");
+    let albers = fixtures().join("national/ttp_dsm_albers.tif");
+    let utm = fixtures().join("real/ttp2015/ttp_dsm_source.tif");
+    let out = bin()
+        .arg("ingest")
+        .args([&albers, &utm])
+        .arg("--store")
+        .arg(&store)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let said = text(&out.stdout);
+    assert!(
+        said.contains("reprojected from EPSG:26917 to EPSG:5070, NAD83 / Conus Albers at 1 m"),
+        "{said}"
+    );
+    // the correction of the Albers DSM is the move back
+    let (centre, truth) = ([1_332_176.741, 2_409_692.023, 80.0], [-3.2626, 1.5233, 0.0]);
+    assert_pair_moves(
+        &store,
+        ("ttp_dsm_source", "ttp_dsm_albers"),
+        centre,
+        truth,
+        [0.05, 0.05, 0.05],
+    );
+    let doc = eval_reference(&store, &utm, "EPSG:26917");
+    assert!(
+        doc["before"]["inlier_fraction"].as_f64().unwrap() > 0.9,
+        "{doc}"
+    );
+}
+
 /// A collection across a UTM zone boundary: GDAL's UTM 37N twins of the
 /// pair, the reference put into 38N by `--utm-zone 38N`, then the moving one
 /// ingested into that store with no flag: it is put into 38N as it is read
