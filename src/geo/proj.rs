@@ -227,215 +227,42 @@ const fn entry(epsg: u32, name: &'static str, datum: Datum, lon0: f64, method: M
     }
 }
 
-/// The projected CRSs besides UTM, with EPSG's parameters (v11.022).
+/// A universal polar stereographic CRS's method.
+const fn ups(north: bool) -> Method {
+    Method::PolarStereographicA {
+        north,
+        k0: 0.994,
+        fe: 2_000_000.0,
+        fn_: 2_000_000.0,
+    }
+}
+
+/// The projected CRSs besides UTM, with EPSG's parameters (v11.022), one per
+/// line.
+#[rustfmt::skip]
 const TABLE: [Entry; 19] = {
     use Datum::{Etrs89, Nad83, Wgs84};
     use Method::*;
-    const UPS: f64 = 2_000_000.0;
     [
-        entry(
-            3413,
-            "WGS 84 / NSIDC Sea Ice Polar Stereographic North",
-            Wgs84,
-            -45.0,
-            PolarStereographicB { lat_ts: 70.0 },
-        ),
-        entry(
-            3976,
-            "WGS 84 / NSIDC Sea Ice Polar Stereographic South",
-            Wgs84,
-            0.0,
-            PolarStereographicB { lat_ts: -70.0 },
-        ),
-        entry(
-            3031,
-            "WGS 84 / Antarctic Polar Stereographic",
-            Wgs84,
-            0.0,
-            PolarStereographicB { lat_ts: -71.0 },
-        ),
-        entry(
-            3995,
-            "WGS 84 / Arctic Polar Stereographic",
-            Wgs84,
-            0.0,
-            PolarStereographicB { lat_ts: 71.0 },
-        ),
-        entry(
-            5041,
-            "WGS 84 / UPS North (E,N)",
-            Wgs84,
-            0.0,
-            PolarStereographicA {
-                north: true,
-                k0: 0.994,
-                fe: UPS,
-                fn_: UPS,
-            },
-        ),
-        entry(
-            5042,
-            "WGS 84 / UPS South (E,N)",
-            Wgs84,
-            0.0,
-            PolarStereographicA {
-                north: false,
-                k0: 0.994,
-                fe: UPS,
-                fn_: UPS,
-            },
-        ),
-        entry(
-            32661,
-            "WGS 84 / UPS North (N,E)",
-            Wgs84,
-            0.0,
-            PolarStereographicA {
-                north: true,
-                k0: 0.994,
-                fe: UPS,
-                fn_: UPS,
-            },
-        ),
-        entry(
-            32761,
-            "WGS 84 / UPS South (N,E)",
-            Wgs84,
-            0.0,
-            PolarStereographicA {
-                north: false,
-                k0: 0.994,
-                fe: UPS,
-                fn_: UPS,
-            },
-        ),
-        entry(
-            3573,
-            "WGS 84 / North Pole LAEA Canada",
-            Wgs84,
-            -100.0,
-            LambertAzimuthal {
-                lat0: 90.0,
-                fe: 0.0,
-                fn_: 0.0,
-            },
-        ),
-        entry(
-            6931,
-            "WGS 84 / NSIDC EASE-Grid 2.0 North",
-            Wgs84,
-            0.0,
-            LambertAzimuthal {
-                lat0: 90.0,
-                fe: 0.0,
-                fn_: 0.0,
-            },
-        ),
-        entry(
-            6932,
-            "WGS 84 / NSIDC EASE-Grid 2.0 South",
-            Wgs84,
-            0.0,
-            LambertAzimuthal {
-                lat0: -90.0,
-                fe: 0.0,
-                fn_: 0.0,
-            },
-        ),
-        entry(
-            2154,
-            "RGF93 v1 / Lambert-93",
-            Etrs89,
-            3.0,
-            LambertConic {
-                lat0: 46.5,
-                lat1: 49.0,
-                lat2: 44.0,
-                fe: 700_000.0,
-                fn_: 6_600_000.0,
-            },
-        ),
-        entry(
-            3034,
-            "ETRS89-extended / LCC Europe",
-            Etrs89,
-            10.0,
-            LambertConic {
-                lat0: 52.0,
-                lat1: 35.0,
-                lat2: 65.0,
-                fe: 4_000_000.0,
-                fn_: 2_800_000.0,
-            },
-        ),
-        entry(
-            3035,
-            "ETRS89-extended / LAEA Europe",
-            Etrs89,
-            10.0,
-            LambertAzimuthal {
-                lat0: 52.0,
-                fe: 4_321_000.0,
-                fn_: 3_210_000.0,
-            },
-        ),
-        entry(
-            3006,
-            "SWEREF99 TM",
-            Etrs89,
-            15.0,
-            TransverseMercator {
-                k0: 0.9996,
-                fe: 500_000.0,
-            },
-        ),
-        entry(
-            3067,
-            "ETRS89 / TM35FIN(E,N)",
-            Etrs89,
-            27.0,
-            TransverseMercator {
-                k0: 0.9996,
-                fe: 500_000.0,
-            },
-        ),
-        entry(
-            5070,
-            "NAD83 / Conus Albers",
-            Nad83,
-            -96.0,
-            Albers {
-                lat0: 23.0,
-                lat1: 29.5,
-                lat2: 45.5,
-                fe: 0.0,
-                fn_: 0.0,
-            },
-        ),
-        entry(
-            3338,
-            "NAD83 / Alaska Albers",
-            Nad83,
-            -154.0,
-            Albers {
-                lat0: 50.0,
-                lat1: 55.0,
-                lat2: 65.0,
-                fe: 0.0,
-                fn_: 0.0,
-            },
-        ),
-        entry(
-            3571,
-            "WGS 84 / North Pole LAEA Bering Sea",
-            Wgs84,
-            180.0,
-            LambertAzimuthal {
-                lat0: 90.0,
-                fe: 0.0,
-                fn_: 0.0,
-            },
-        ),
+        entry(3413, "WGS 84 / NSIDC Sea Ice Polar Stereographic North", Wgs84, -45.0, PolarStereographicB { lat_ts: 70.0 }),
+        entry(3976, "WGS 84 / NSIDC Sea Ice Polar Stereographic South", Wgs84, 0.0, PolarStereographicB { lat_ts: -70.0 }),
+        entry(3031, "WGS 84 / Antarctic Polar Stereographic", Wgs84, 0.0, PolarStereographicB { lat_ts: -71.0 }),
+        entry(3995, "WGS 84 / Arctic Polar Stereographic", Wgs84, 0.0, PolarStereographicB { lat_ts: 71.0 }),
+        entry(5041, "WGS 84 / UPS North (E,N)", Wgs84, 0.0, ups(true)),
+        entry(5042, "WGS 84 / UPS South (E,N)", Wgs84, 0.0, ups(false)),
+        entry(32661, "WGS 84 / UPS North (N,E)", Wgs84, 0.0, ups(true)),
+        entry(32761, "WGS 84 / UPS South (N,E)", Wgs84, 0.0, ups(false)),
+        entry(3571, "WGS 84 / North Pole LAEA Bering Sea", Wgs84, 180.0, LambertAzimuthal { lat0: 90.0, fe: 0.0, fn_: 0.0 }),
+        entry(3573, "WGS 84 / North Pole LAEA Canada", Wgs84, -100.0, LambertAzimuthal { lat0: 90.0, fe: 0.0, fn_: 0.0 }),
+        entry(6931, "WGS 84 / NSIDC EASE-Grid 2.0 North", Wgs84, 0.0, LambertAzimuthal { lat0: 90.0, fe: 0.0, fn_: 0.0 }),
+        entry(6932, "WGS 84 / NSIDC EASE-Grid 2.0 South", Wgs84, 0.0, LambertAzimuthal { lat0: -90.0, fe: 0.0, fn_: 0.0 }),
+        entry(2154, "RGF93 v1 / Lambert-93", Etrs89, 3.0, LambertConic { lat0: 46.5, lat1: 49.0, lat2: 44.0, fe: 700_000.0, fn_: 6_600_000.0 }),
+        entry(3034, "ETRS89-extended / LCC Europe", Etrs89, 10.0, LambertConic { lat0: 52.0, lat1: 35.0, lat2: 65.0, fe: 4_000_000.0, fn_: 2_800_000.0 }),
+        entry(3035, "ETRS89-extended / LAEA Europe", Etrs89, 10.0, LambertAzimuthal { lat0: 52.0, fe: 4_321_000.0, fn_: 3_210_000.0 }),
+        entry(3006, "SWEREF99 TM", Etrs89, 15.0, TransverseMercator { k0: 0.9996, fe: 500_000.0 }),
+        entry(3067, "ETRS89 / TM35FIN(E,N)", Etrs89, 27.0, TransverseMercator { k0: 0.9996, fe: 500_000.0 }),
+        entry(5070, "NAD83 / Conus Albers", Nad83, -96.0, Albers { lat0: 23.0, lat1: 29.5, lat2: 45.5, fe: 0.0, fn_: 0.0 }),
+        entry(3338, "NAD83 / Alaska Albers", Nad83, -154.0, Albers { lat0: 50.0, lat1: 55.0, lat2: 65.0, fe: 0.0, fn_: 0.0 }),
     ]
 };
 

@@ -14,6 +14,15 @@ fn target() -> MaskTarget {
     }
 }
 
+/// The corners (UTM 17N) of a polygon holding the DSMs' west half, E 500032
+/// its east edge.
+const WEST_HALF: [(f64, f64); 4] = [
+    (499_990.0, 4_799_990.0),
+    (500_032.0, 4_799_990.0),
+    (500_032.0, 4_800_070.0),
+    (499_990.0, 4_800_070.0),
+];
+
 /// A 32 x 32 mask of 2 m cells over the DSMs: 0 in its eastern half, NaN in
 /// row 0, `value` elsewhere.
 fn write_mask(path: &Path, epsg: u32, sample: CogSample, value: f32) {
@@ -112,25 +121,20 @@ fn assert_west_half_stable(mask: &StableMask, what: &str) {
 
 /// The polygons of the test above in longitude and latitude, as RFC 7946
 /// GeoJSON has them (no "crs" member, or CRS84 named): put into the DSMs'
-/// UTM zone, the same cells are stable. Degrees into DSMs that are not in a
-/// UTM zone are refused.
+/// UTM zone, the same cells are stable. Degrees into DSMs in a CRS dsmstream
+/// cannot project into (British National Grid) are refused.
 #[test]
 fn geojson_in_degrees_is_put_into_the_dsms_utm_zone() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("degrees.geojson");
     let tm = crate::geo::tm::Utm::from_epsg(32617).unwrap().projection();
-    let ring: Vec<String> = [
-        (499_990.0, 4_799_990.0),
-        (500_032.0, 4_799_990.0),
-        (500_032.0, 4_800_070.0),
-        (499_990.0, 4_800_070.0),
-    ]
-    .iter()
-    .map(|&(e, n)| {
-        let (lon, lat) = tm.inverse(e, n);
-        format!("[{lon:.12}, {lat:.12}]")
-    })
-    .collect();
+    let ring: Vec<String> = WEST_HALF
+        .iter()
+        .map(|&(e, n)| {
+            let (lon, lat) = tm.inverse(e, n);
+            format!("[{lon:.12}, {lat:.12}]")
+        })
+        .collect();
     let text = format!(
         r#"{{"type": "Polygon", "coordinates": [[{}]]}}"#,
         ring.join(", ")
@@ -223,37 +227,42 @@ fn assert_stable_west_of(path: &Path, edge: std::ops::RangeInclusive<i64>) {
 }
 
 /// GeoJSON polygons naming the neighbouring UTM zone (EPSG:32618 for DSMs in
-/// 17N): the west half of the DSMs, its corners given in 18N, is put into
-/// 17N (edges cut every 100 m), and the same cells as in 17N are stable.
+/// 17N), or a national grid on the DSMs' datum (NAD83 / Conus Albers for
+/// DSMs in NAD83 / UTM 17N): the west half of the DSMs, its corners given in
+/// that CRS, is put into 17N (edges cut every 100 m), and the same cells as
+/// in 17N are stable.
 #[test]
 fn geojson_in_another_utm_zone_is_put_into_the_dsms_zone() {
+    use crate::geo::proj::ProjectedCrs;
     let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("zone18.geojson");
-    let (z17, z18) = (
-        crate::geo::tm::Utm::from_epsg(32617).unwrap().projection(),
-        crate::geo::tm::Utm::from_epsg(32618).unwrap().projection(),
-    );
-    let ring: Vec<String> = [
-        (499_990.0, 4_799_990.0),
-        (500_032.0, 4_799_990.0),
-        (500_032.0, 4_800_070.0),
-        (499_990.0, 4_800_070.0),
-    ]
-    .iter()
-    .map(|&(e, n)| {
-        let (lon, lat) = z17.inverse(e, n);
-        let (x, y) = z18.forward(lon, lat);
-        format!("[{x:.6}, {y:.6}]")
-    })
-    .collect();
-    let doc = format!(
-        r#"{{"type": "Polygon", "crs": {{"type": "name", "properties": {{"name": "EPSG:32618"}}}}, "coordinates": [[{}]]}}"#,
-        ring.join(", ")
-    );
-    std::fs::write(&path, &doc).unwrap();
-    assert_west_half_stable(&StableMask::load(&path, &target()).unwrap(), &doc);
+    let path = dir.path().join("other.geojson");
+    for (dsms, polygons) in [(32617, 32618), (26917, 5070)] {
+        let (z17, other) = (
+            ProjectedCrs::from_epsg(dsms).unwrap().projection,
+            ProjectedCrs::from_epsg(polygons).unwrap().projection,
+        );
+        let ring: Vec<String> = WEST_HALF
+            .iter()
+            .map(|&(e, n)| {
+                let (lon, lat) = z17.inverse(e, n);
+                let (x, y) = other.forward(lon, lat);
+                format!("[{x:.6}, {y:.6}]")
+            })
+            .collect();
+        let doc = format!(
+            r#"{{"type": "Polygon", "crs": {{"type": "name", "properties": {{"name": "EPSG:{polygons}"}}}}, "coordinates": [[{}]]}}"#,
+            ring.join(", ")
+        );
+        std::fs::write(&path, &doc).unwrap();
+        let target = MaskTarget {
+            crs: Some(epsg_crs(dsms)),
+            ..target()
+        };
+        assert_west_half_stable(&StableMask::load(&path, &target).unwrap(), &doc);
+    }
     // another datum's zone is still refused by name
-    std::fs::write(&path, doc.replace("EPSG:32618", "EPSG:26918")).unwrap();
+    let doc = std::fs::read_to_string(&path).unwrap();
+    std::fs::write(&path, doc.replace("EPSG:5070", "EPSG:26918")).unwrap();
     let err = StableMask::load(&path, &target()).unwrap_err().to_string();
     assert!(
         err.contains("EPSG:26918") && err.contains("EPSG:32617"),

@@ -6,7 +6,9 @@ For each source (demcompare's SRTM tile, 3" pixels, and the same tile resampled
 by GDAL to 1" and to 1/3", 9x and 81x the pixels, as Copernicus GLO-30 and a
 10 m national DSM in degrees would be; and GDAL's UTM 37N warp of the tile at
 90 m, and that resampled to 10 m, put into UTM 38N as a DSM across a zone
-boundary is), prints:
+boundary is; Tommy Thompson Park's 1 m lidar DSM in UTM 17N, and that resampled
+to 0.25 m, put into NAD83 / Conus Albers; and the SRTM tile, labelled as ETRS89
+degrees, at 3" and 1/3", put into LAEA Europe: national grids), prints:
   - dsmstream ingest of the source: wall s, peak RSS MB, output size;
   - GDAL (rasterio.warp.reproject, bilinear, to the same UTM grid, in memory)
     then dsmstream ingest of GDAL's UTM file: wall s each;
@@ -17,7 +19,8 @@ boundary is), prints:
     same grid), dh median and NMAD (m) over their common pixels. GDAL's warper
     does not interpolate at the exact position (its bilinear kernel differs).
 
-Usage: bench_warp.py DSMSTREAM WORKDIR   (needs rasterio: the peers' venv)
+Usage: bench_warp.py DSMSTREAM WORKDIR [STEM ...]   (needs rasterio and zarr: the
+peers' venv; STEMs pick rows, e.g. ttp_utm17_to_albers)
 """
 import json
 import os
@@ -35,6 +38,7 @@ from rasterio.warp import reproject
 HERE = os.path.dirname(os.path.abspath(__file__))
 SRTM = os.path.join(HERE, "../../fixtures/real/demcompare_srtm/srtm_ref.tif")
 SRTM_UTM = os.path.join(HERE, "../../fixtures/real/demcompare_srtm/srtm_ref_utm.tif")
+TTP = os.path.join(HERE, "../../fixtures/real/ttp2015/ttp_dsm_source.tif")
 
 
 def timed(cmd):
@@ -50,8 +54,9 @@ def timed(cmd):
     return wall, rss_kb / 1024, out.stdout
 
 
-def upsampled(factor, path, source=SRTM):
-    """The SRTM tile at 1/factor of its pixel, bilinear (GDAL), Float32 tiled Deflate."""
+def upsampled(factor, path, source=SRTM, crs=None):
+    """The source at 1/factor of its pixel, bilinear (GDAL), Float32 tiled Deflate
+    (labelled `crs` when given)."""
     with rasterio.open(source) as src:
         data = src.read(1, out_shape=(src.height * factor, src.width * factor),
                         resampling=Resampling.bilinear, masked=True)
@@ -62,6 +67,8 @@ def upsampled(factor, path, source=SRTM):
             nodata=-32768.0, tiled=True, blockxsize=256, blockysize=256,
             compress="deflate", transform=Affine(t.a / factor, 0, t.c, 0, t.e / factor, t.f),
         )
+        if crs is not None:
+            profile.update(crs=CRS.from_epsg(crs))
     with rasterio.open(path, "w", **profile) as dst:
         dst.write(data.filled(-32768.0).astype("float32"), 1)
 
@@ -99,15 +106,20 @@ def main():
     binary, work = sys.argv[1], sys.argv[2]
     os.makedirs(work, exist_ok=True)
     rows = []
-    cases = [("srtm", SRTM, f, 32637, []) for f in (1, 3, 9)]
-    cases += [("srtm_utm37_to_38", SRTM_UTM, f, 32638, ["--utm-zone", "38N"]) for f in (1, 9)]
-    for stem, source, factor, epsg, flags in cases:
+    only = sys.argv[3:]
+    cases = [("srtm", SRTM, f, 32637, [], None) for f in (1, 3, 9)]
+    cases += [("srtm_utm37_to_38", SRTM_UTM, f, 32638, ["--utm-zone", "38N"], None) for f in (1, 9)]
+    cases += [("ttp_utm17_to_albers", TTP, f, 5070, ["--crs", "EPSG:5070"], None) for f in (1, 4)]
+    cases += [("srtm_etrs89_to_laea", SRTM, f, 3035, ["--crs", "EPSG:3035"], 4258) for f in (1, 9)]
+    for stem, source, factor, epsg, flags, relabel in cases:
         name = f"{stem}_x{factor}"
+        if only and stem not in only:
+            continue
         src = os.path.join(work, f"{name}.tif")
-        if factor == 1:
+        if factor == 1 and relabel is None:
             subprocess.run(["cp", source, src], check=True)
         else:
-            upsampled(factor, src, source)
+            upsampled(factor, src, source, relabel)
         store = os.path.join(work, f"{name}.zarr")
         subprocess.run(["rm", "-rf", store], check=True)
         wall, rss, said = timed([binary, "ingest", src, "--store", store, "-q"] + flags)
