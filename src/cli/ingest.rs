@@ -132,8 +132,11 @@ fn summary_line(o: &DsmOutcome) -> String {
     let tail = match &o.warped {
         None => tail,
         Some(w) => format!(
-            "{tail}; reprojected from {} to {} at {} m (bilinear)",
-            w.from, w.to, w.pixel_m
+            "{tail}; reprojected from {} to {} at {} m (bilinear{})",
+            w.from,
+            w.to,
+            w.pixel_m,
+            (w.datum.as_ref()).map_or(String::new(), |d| format!("; {d}"))
         ),
     };
     format!(

@@ -162,8 +162,8 @@ fn reference_raster_scores_the_fused_surface() {
 fn bad_references_are_bad_input() {
     let f = fixture();
     let cache = ChunkCache::new(16 << 20);
-    let other_crs = f.dir.path().join("nad83.tif");
-    raster(&other_crs, 500_010.0, 4_799_995.0, 50, 50, [0.0; 3], 26917);
+    let other_crs = f.dir.path().join("csrs.tif");
+    raster(&other_crs, 500_010.0, 4_799_995.0, 50, 50, [0.0; 3], 2958);
     let far = f.dir.path().join("far.tif");
     raster(&far, 600_000.0, 4_799_995.0, 50, 50, [0.0; 3], 32617);
     let unknown = f.dir.path().join("ref.xyz");

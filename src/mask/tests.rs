@@ -62,13 +62,14 @@ fn a_geotiff_mask_is_stable_where_non_zero() {
 #[test]
 fn a_mask_in_another_crs_is_refused_naming_the_file() {
     let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("nad83.tif");
-    write_mask(&path, 26917, CogSample::Float32, 1.0);
+    // NAD83(CSRS) / UTM 17N: a datum dsmstream does not take as WGS 84
+    let path = dir.path().join("csrs.tif");
+    write_mask(&path, 2958, CogSample::Float32, 1.0);
     let err = StableMask::load(&path, &target()).unwrap_err();
     assert!(err.is_bad_input());
     let text = err.to_string();
     assert!(
-        text.contains("nad83.tif") && text.contains("EPSG:26917") && text.contains("EPSG:32617"),
+        text.contains("csrs.tif") && text.contains("EPSG:2958") && text.contains("EPSG:32617"),
         "{text}"
     );
     assert!(!text.contains('\n'));
@@ -260,12 +261,12 @@ fn geojson_in_another_utm_zone_is_put_into_the_dsms_zone() {
         };
         assert_west_half_stable(&StableMask::load(&path, &target).unwrap(), &doc);
     }
-    // another datum's zone is still refused by name
+    // a CRS dsmstream does not know (NAD83(CSRS) / UTM 18N) is refused by name
     let doc = std::fs::read_to_string(&path).unwrap();
-    std::fs::write(&path, doc.replace("EPSG:5070", "EPSG:26918")).unwrap();
+    std::fs::write(&path, doc.replace("EPSG:5070", "EPSG:2959")).unwrap();
     let err = StableMask::load(&path, &target()).unwrap_err().to_string();
     assert!(
-        err.contains("EPSG:26918") && err.contains("EPSG:32617"),
+        err.contains("EPSG:2959") && err.contains("EPSG:32617"),
         "{err}"
     );
 }

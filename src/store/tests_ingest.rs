@@ -80,7 +80,8 @@ fn store_refuses_bad_inputs_before_writing() {
         },
         surface(30, 30, 6),
     );
-    let other = inputs.add("other.tif", 30, 30, utm(32617), surface(30, 30, 7));
+    // NAD83(CSRS) / UTM 17N: a datum dsmstream does not take as NAD83
+    let other = inputs.add("other.tif", 30, 30, utm(2958), surface(30, 30, 7));
     let fresh = inputs.add("fresh.tif", 30, 30, utm(26917), surface(30, 30, 8));
     let empty = inputs.add("empty.tif", 0, 30, utm(26917), vec![]);
     let cases = [
@@ -90,7 +91,7 @@ fn store_refuses_bad_inputs_before_writing() {
         ),
         (
             other,
-            "CRS EPSG:32617 differs from the collection's CRS EPSG:26917",
+            "CRS EPSG:2958 differs from the collection's CRS EPSG:26917",
         ),
         (empty, "empty raster"),
     ];

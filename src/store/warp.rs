@@ -1,13 +1,15 @@
 //! DSMs delivered in longitude and latitude (SRTM, Copernicus, ALOS, NASADEM:
-//! the global DSMs), and DSMs in another projected CRS on the same datum (a
-//! neighbouring UTM zone, a national or polar grid: [`ProjectedCrs`]), are put
-//! into the collection's CRS as they are read, so they register in metres
-//! with the rest of it.
+//! the global DSMs), and DSMs in another projected CRS (a neighbouring UTM
+//! zone, a national or polar grid: [`ProjectedCrs`]), are put into the
+//! collection's CRS as they are read, so they register in metres with the
+//! rest of it. WGS 84, NAD83 and ETRS89 count as one datum, as PROJ's
+//! default transformation between them has it (they differ by 1-2 m, an
+//! offset registration estimates); the line of such a DSM says so.
 //!
-//! One CRS per run ([`choose_zone`]): the UTM zone `--utm-zone` names, else
-//! the collection's CRS when [`ProjectedCrs`] knows it and it is on the same
-//! datum (the store's, else the first projected input's), else the UTM zone
-//! of the centre of the geographic inputs. Each input in degrees or in
+//! One CRS per run ([`choose_zone`]): the CRS `--utm-zone` or `--crs` names,
+//! else the collection's CRS when [`ProjectedCrs`] knows it (the store's,
+//! else the first projected input's), else the UTM zone of the centre of the
+//! geographic inputs. Each input in degrees or in
 //! another known CRS becomes a [`WarpSource`]: a [`RowSource`] that hands out
 //! rows of a north-up grid in the collection's CRS, with square pixels as
 //! fine as the source's finer axis there (degrees: two significant digits;
@@ -117,9 +119,14 @@ fn known(crs: &Crs) -> Option<ProjectedCrs> {
 }
 
 /// The CRS this run puts its inputs in degrees and in other projected CRSs
-/// into, or `None` when no input needs one (none in longitude and latitude on
-/// WGS 84, NAD83 or ETRS89, and none in another known CRS on the
-/// collection's datum; others are refused later by the header checks).
+/// into (a new collection in degrees: the UTM zone of their centre, or UPS
+/// North or South beyond 84 degrees), or `None` when no input needs one (none in longitude and latitude on
+/// WGS 84, NAD83 or ETRS89, and none in another known CRS than the
+/// collection's; others are refused later by the header checks).
+///
+/// WGS 84, NAD83 and ETRS89 are taken as one datum here, as PROJ's default
+/// (ballpark) transformation between them does: they differ by 1-2 m, an
+/// offset registration estimates like any other ([`Warped::datum`] says so).
 pub(super) fn choose_zone(
     collection: Option<&Crs>,
     forced: Option<CrsChoice>,
@@ -127,7 +134,7 @@ pub(super) fn choose_zone(
     open: &SourceOpener,
 ) -> Result<Option<ProjectedCrs>, IngestError> {
     let mut collection = collection.cloned();
-    let (mut datum, mut zones) = (None, Vec::new());
+    let (mut degrees, mut zones) = (None, Vec::new());
     let (mut lon, mut lat) = (
         (f64::INFINITY, f64::NEG_INFINITY),
         (f64::INFINITY, f64::NEG_INFINITY),
@@ -142,62 +149,55 @@ pub(super) fn choose_zone(
             }
             continue;
         };
-        datum.get_or_insert(d);
+        degrees.get_or_insert(d);
         let b = raster.geotransform.bounds(raster.width, raster.height);
         lon = (lon.0.min(b[0]), lon.1.max(b[2]));
         lat = (lat.0.min(b[1]), lat.1.max(b[3]));
     }
     let collection_crs = collection.as_ref().and_then(known);
-    let Some(datum) = datum else {
+    // the datum a UTM zone asked for is on: the collection's, else the inputs'
+    let datum = (collection_crs.as_ref().map(|c| c.datum))
+        .or(degrees)
+        .or(zones.first().map(|u| u.datum));
+    let Some(degrees) = degrees else {
         // no input in degrees: a CRS for the inputs in other known CRSs
-        let datum = (collection_crs.as_ref().or(zones.first())).map(|u| u.datum);
         let chosen = match (forced, datum) {
-            (Some(choice @ CrsChoice::Epsg(_)), _) => Some(choice.on(Datum::Wgs84)),
             (Some(choice), Some(datum)) => Some(choice.on(datum)),
             _ => collection_crs,
         };
-        let moves = |to: &ProjectedCrs| zones.iter().any(|u| u.datum == to.datum && u != to);
+        let moves = |to: &ProjectedCrs| zones.iter().any(|u| u != to);
         if let Some(choice) = forced.filter(|_| !chosen.as_ref().is_some_and(moves)) {
             tracing::warn!(
-                "{} has no effect: no DSM to ingest is in longitude and latitude or in another projected CRS on its datum",
+                "{} has no effect: no DSM to ingest is in longitude and latitude or in another projected CRS",
                 choice.flag()
             );
         }
         return Ok(chosen.filter(moves));
     };
     if let Some(choice) = forced {
-        let chosen = choice.on(datum);
-        if chosen.datum != datum {
-            let message = format!(
-                "{} is on {}, and the DSMs in longitude and latitude are on {}: choose a CRS on their datum",
-                choice.flag(),
-                chosen.datum.name(),
-                datum.name()
-            );
-            return Err(IngestError::BadInput(message));
-        }
-        return Ok(Some(chosen));
+        return Ok(Some(choice.on(datum.unwrap_or(degrees))));
     }
-    let collection_crs = collection_crs.filter(|u| u.datum == datum);
+    let (lon, lat) = (0.5 * (lon.0 + lon.1), 0.5 * (lat.0 + lat.1));
     Ok(Some(collection_crs.unwrap_or_else(|| {
-        ProjectedCrs::utm(Utm::containing(
-            datum,
-            0.5 * (lon.0 + lon.1),
-            0.5 * (lat.0 + lat.1),
-        ))
+        if lat.abs() > MAX_LATITUDE_DEG {
+            // UPS beyond UTM's latitudes (WGS 84 only, taken as the datum)
+            let ups = if lat > 0.0 { 5041 } else { 5042 };
+            return ProjectedCrs::from_epsg(ups).expect("UPS is in the table");
+        }
+        ProjectedCrs::utm(Utm::containing(degrees, lon, lat))
     })))
 }
 
-/// The frame a source is put into `target` from: longitude and latitude on
-/// the target's datum, or another known projected CRS on it; `None`: the
-/// source is read as it is (already in the target CRS, or in a CRS the
-/// header checks judge).
-fn source_frame(crs: &Crs, target: &ProjectedCrs) -> Option<Frame> {
-    if geographic_datum(crs) == Some(target.datum) {
-        return Some(Frame::Degrees);
+/// The frame a source is put into `target` from, and its datum: longitude
+/// and latitude, or another known projected CRS; `None`: the source is read
+/// as it is (already in the target CRS, or in a CRS the header checks
+/// judge).
+fn source_frame(crs: &Crs, target: &ProjectedCrs) -> Option<(Frame, Datum)> {
+    if let Some(datum) = geographic_datum(crs) {
+        return Some((Frame::Degrees, datum));
     }
     let from = known(crs)?;
-    (from.datum == target.datum && from != *target).then_some(Frame::Projected(from.projection))
+    (from != *target).then_some((Frame::Projected(from.projection), from.datum))
 }
 
 /// `open`, with sources in longitude and latitude, or in another known
@@ -227,6 +227,9 @@ pub struct Warped {
     pub to: String,
     /// The output pixel (m).
     pub pixel_m: f64,
+    /// "WGS 84 taken as NAD83" when the source's datum is not the target's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub datum: Option<String>,
 }
 
 /// The frame of a source's geotransform.
@@ -234,7 +237,7 @@ pub struct Warped {
 pub(crate) enum Frame {
     /// Longitude and latitude, degrees.
     Degrees,
-    /// Easting and northing of another projected CRS (same datum), metres.
+    /// Easting and northing of another projected CRS, metres.
     Projected(Projection),
 }
 
@@ -284,11 +287,10 @@ impl WarpSource {
                 target.label()
             ))
         })?;
-        let frame = source_frame(&src.crs, target).ok_or_else(|| {
+        let (frame, datum) = source_frame(&src.crs, target).ok_or_else(|| {
             bad(format!(
-                "CRS {} is neither longitude and latitude nor another projected CRS dsmstream knows on {}",
+                "CRS {} is neither longitude and latitude nor another projected CRS dsmstream knows",
                 src.crs.label(),
-                target.datum.name()
             ))
         })?;
         let gt = src.geotransform;
@@ -307,6 +309,8 @@ impl WarpSource {
             from: src.crs.label(),
             to: target.label(),
             pixel_m: grid.gsd_x(),
+            datum: (datum != target.datum)
+                .then(|| format!("{} taken as {}", datum.name(), target.datum.name())),
         };
         let raster = SourceRaster {
             width,
@@ -584,11 +588,11 @@ impl IntoZone {
 }
 
 /// How a raster in `crs` is put into `collection`'s CRS: `Some` when
-/// [`ProjectedCrs`] knows `collection` and `crs` is longitude and latitude on
-/// its datum (WGS 84, NAD83 or ETRS89) or another known CRS on it.
+/// [`ProjectedCrs`] knows `collection` and `crs` is longitude and latitude
+/// (WGS 84, NAD83 or ETRS89) or another known CRS.
 pub fn projection_into(crs: &Crs, collection: &Crs) -> Option<IntoZone> {
     let target = known(collection)?;
-    let frame = source_frame(crs, &target)?;
+    let (frame, _) = source_frame(crs, &target)?;
     Some(IntoZone {
         projection: target.projection,
         frame,
@@ -596,13 +600,12 @@ pub fn projection_into(crs: &Crs, collection: &Crs) -> Option<IntoZone> {
 }
 
 /// How coordinates of the CRS whose EPSG code is `epsg` are put into
-/// `collection`'s CRS: `Some` when [`ProjectedCrs`] knows both, they are on
-/// one datum, and they differ (a mask's polygons that name their CRS by
-/// code).
+/// `collection`'s CRS: `Some` when [`ProjectedCrs`] knows both and they
+/// differ (a mask's polygons that name their CRS by code).
 pub fn zone_into(epsg: u32, collection: &Crs) -> Option<IntoZone> {
     let from = ProjectedCrs::from_epsg(epsg)?;
     let target = known(collection)?;
-    (from.datum == target.datum && from != target).then_some(IntoZone {
+    (from != target).then_some(IntoZone {
         projection: target.projection,
         frame: Frame::Projected(from.projection),
     })
@@ -924,14 +927,28 @@ mod tests {
     }
 
     #[test]
-    fn a_crs_on_another_datum_is_not_put_into_it() {
-        let target = ProjectedCrs::from_epsg(2154).unwrap();
-        let wgs84_utm = crate::geotiff::geokeys::crs_from_entries(vec![
-            (1024, crate::geotiff::geokeys::GeoKeyValue::Short(1)),
-            (3072, crate::geotiff::geokeys::GeoKeyValue::Short(32631)),
-        ])
-        .unwrap();
-        assert!(source_frame(&wgs84_utm, &target).is_none());
+    fn wgs84_nad83_and_etrs89_count_as_one_datum_and_others_do_not() {
+        let projected = |code: u16| {
+            crate::geotiff::geokeys::crs_from_entries(vec![
+                (1024, crate::geotiff::geokeys::GeoKeyValue::Short(1)),
+                (3072, crate::geotiff::geokeys::GeoKeyValue::Short(code)),
+            ])
+            .unwrap()
+        };
+        let lambert93 = ProjectedCrs::from_epsg(2154).unwrap();
+        let (_, datum) = source_frame(&projected(32631), &lambert93).unwrap();
+        assert_eq!(datum, Datum::Wgs84);
+        // the same zone on another of the three: put into it, said
+        let nad83 = ProjectedCrs::from_epsg(26917).unwrap();
+        let (w, h, px) = (20u64, 20u64, 10.0);
+        let mut source = geographic(500_000.0, 4_800_000.0, px, w, h, vec![7.0; 400]);
+        source.raster.crs = projected(32617);
+        let warp = WarpSource::new(Box::new(source), &nad83).unwrap();
+        let said = warp.warped().unwrap();
+        assert_eq!(said.datum.as_deref(), Some("WGS 84 taken as NAD83"));
+        // ED50 / UTM 31N and NAD83(CSRS) / UTM 17N are not
+        assert!(source_frame(&projected(23031), &lambert93).is_none());
+        assert!(source_frame(&projected(2958), &nad83).is_none());
     }
 
     #[test]

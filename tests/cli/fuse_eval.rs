@@ -316,7 +316,8 @@ fn references_in_another_crs_or_elsewhere_are_refused() {
         write_geotiff_f32(&path, 32, 32, options, &vec![210.0; 32 * 32]).unwrap();
         path
     };
-    let nad83 = write("nad83.tif", epsg_crs(26917), 500_010.0);
+    // NAD83(CSRS) / UTM 17N: a CRS dsmstream does not put into WGS 84's zone
+    let nad83 = write("csrs.tif", epsg_crs(2958), 500_010.0);
     let far = write("far.tif", epsg_crs(32617), 700_000.0);
     // PDAL's Autzen lidar, in feet: named for its unit, not compared in it
     let feet = fixtures().join("real/pdal/autzen_trim.laz");

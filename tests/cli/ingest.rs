@@ -250,9 +250,10 @@ fn a_dsm_in_degrees_is_put_into_the_collections_utm_zone() {
 /// `--crs` puts DSMs into a national or polar grid by its EPSG code:
 /// xdem-data's Svalbard crops (ETRS89 / UTM 33N) into LAEA Europe, where the
 /// two that share a lattice still pair to the identity; SRTM in degrees
-/// into NSIDC's polar stereographic is refused for its footprint (40 N),
-/// into Lambert-93 for its datum (WGS 84, not ETRS89), and a grid dsmstream
-/// does not know (British National Grid, OSGB36) as a bad flag.
+/// (WGS 84, at 40 N 40 E) into Lambert-93 (ETRS89), taken as on one datum
+/// and said so; into NSIDC's or the Antarctic polar stereographic it is
+/// refused for its footprint, and a grid dsmstream does not know (British
+/// National Grid, OSGB36) as a bad flag.
 #[test]
 fn crs_puts_dsms_into_a_national_or_polar_grid_by_its_code() {
     let tmp = tempfile::tempdir().unwrap();
@@ -285,10 +286,21 @@ fn crs_puts_dsms_into_a_national_or_polar_grid_by_its_code() {
         assert!((moved - p_k).abs() < 0.01, "{m} at {c}");
     }
     let degrees = fixture("demcompare_srtm/srtm_ref.tif");
+    let out = ingest(
+        &[&degrees],
+        &tmp.path().join("l93.zarr"),
+        &["--crs", "EPSG:2154"],
+    );
+    assert_ok(&out);
+    let said = text(&out.stdout);
+    assert!(
+        said.contains("reprojected from EPSG:4326 to EPSG:2154, RGF93 v1 / Lambert-93 at 72 m (bilinear; WGS 84 taken as ETRS89)"),
+        "{said}"
+    );
     let polar = tmp.path().join("polar.zarr");
     for (flag, problem) in [
         ("EPSG:3413", "cannot be put into EPSG:3413, WGS 84 / NSIDC Sea Ice Polar Stereographic North: its scale there is off by more than 5 %"),
-        ("EPSG:2154", "--crs EPSG:2154 is on ETRS89, and the DSMs in longitude and latitude are on WGS 84"),
+        ("EPSG:3031", "cannot be put into EPSG:3031, WGS 84 / Antarctic Polar Stereographic: its scale there is off by more than 5 %"),
     ] {
         let out = ingest(&[&degrees], &polar, &["--crs", flag]);
         assert_eq!(out.status.code(), Some(2), "{flag}");
@@ -296,6 +308,22 @@ fn crs_puts_dsms_into_a_national_or_polar_grid_by_its_code() {
         assert!(err.lines().count() == 1 && err.contains(problem), "{flag}: {err}");
         assert!(!polar.exists(), "{flag}: no store is left");
     }
+    // beyond 84 degrees a new store of DSMs in degrees is in UPS
+    let crs = dsmstream::geo::Crs {
+        epsg: Some(4326),
+        is_geographic: true,
+        geokeys: vec![1, 1, 0, 3, 1024, 0, 1, 2, 1025, 0, 1, 1, 2048, 0, 1, 4326],
+        ..Default::default()
+    };
+    let north = write_with_crs(tmp.path(), "n86.tif", crs, (10.0, 86.5), 1.0 / 1200.0);
+    let out = ingest(&[&north], &tmp.path().join("ups.zarr"), &[]);
+    assert_ok(&out);
+    assert!(
+        text(&out.stdout)
+            .contains("reprojected from EPSG:4326 to EPSG:5041, WGS 84 / UPS North (E,N)"),
+        "{}",
+        text(&out.stdout)
+    );
     let unknown = ingest(&[&degrees], &polar, &["--crs", "EPSG:27700"]);
     assert_eq!(unknown.status.code(), Some(2));
     assert!(text(&unknown.stderr).contains("not a CRS dsmstream can put DSMs into"));
@@ -646,13 +674,13 @@ fn failed_ingest_leaves_the_store_untouched() {
     );
     assert_eq!(out.status.code(), Some(2), "{}", text(&out.stderr));
     assert_eq!(snapshot(&store), before);
-    // A projected CRS that differs from the collection's.
+    // A UTM zone far from the collection's: it cannot be put into it.
     let out = ingest(&[&fixture("demcompare_srtm/srtm_ref_utm.tif")], &store, &[]);
     assert_eq!(out.status.code(), Some(2));
     let err = text(&out.stderr);
     assert!(
-        err.contains("srtm_ref_utm.tif")
-            && err.contains("CRS EPSG:32637 differs from the collection's CRS EPSG:26917"),
+        err.contains("srtm_ref_utm.tif: its footprint")
+            && err.contains("cannot be put into EPSG:26917, UTM 17N (NAD83)"),
         "{err}"
     );
     assert_eq!(snapshot(&store), before);

@@ -157,12 +157,13 @@ fn a_mask_excluding_a_changed_area_registers_the_pair_correctly() {
         (by_degrees - by_polygon).abs() < 0.01,
         "with the polygons in degrees: {by_degrees} m, in metres {by_polygon} m"
     );
-    // a mask in another CRS (another datum; a UTM zone on the DSMs' datum
-    // would be sampled into theirs): one line, exit 2, the file named
-    let nad83 = p.dir.path().join("nad83.tif");
-    write_tiff_mask(&nad83, area, p.raised, 26917);
-    let out = run(&[&"pair", &p.store, &"tile_00", &"tile_01", &"--mask", &nad83]);
-    assert_refusal(&out, "nad83.tif", "EPSG:26917");
+    // a mask in another CRS (NAD83(CSRS): a datum dsmstream does not take as
+    // WGS 84; a UTM zone or grid on WGS 84, NAD83 or ETRS89 would be sampled
+    // into theirs): one line, exit 2, the file named
+    let csrs = p.dir.path().join("csrs.tif");
+    write_tiff_mask(&csrs, area, p.raised, 2958);
+    let out = run(&[&"pair", &p.store, &"tile_00", &"tile_01", &"--mask", &csrs]);
+    assert_refusal(&out, "csrs.tif", "EPSG:2958");
     // a mask with no stable cell in the overlap: said so, exit 2
     let elsewhere = p.dir.path().join("elsewhere.tif");
     write_tiff_mask(&elsewhere, area, p.overlap.grown(250.0), 32617);
