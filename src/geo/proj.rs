@@ -172,6 +172,119 @@ impl ProjectedCrs {
     }
 }
 
+/// The code of the grid of [`TABLE`] that a method and its parameters define
+/// on `datum`, as a WKT without a code names them (ESRI's and GDAL's WKT 1
+/// names, lower case with underscores: "stereographic_north_pole",
+/// "standard_parallel_1"); `None` when none matches within 1e-9.
+pub fn identify(method: &str, params: &[(String, f64)], datum: Datum) -> Option<u32> {
+    // WKT 2's "polar_stereographic_(variant_b)", "lambert_conic_conformal_(2sp)"
+    let method = method.replace(['(', ')'], "");
+    let method = method.as_str();
+    let get = |names: &[&str]| {
+        (params.iter())
+            .find(|(n, _)| names.contains(&n.as_str()))
+            .map(|p| p.1)
+    };
+    let lon0 = get(&[
+        "central_meridian",
+        "longitude_of_origin",
+        "longitude_of_center",
+        "longitude_of_natural_origin",
+        "longitude_of_false_origin",
+    ]);
+    let lat0 = get(&[
+        "latitude_of_origin",
+        "latitude_of_center",
+        "latitude_of_natural_origin",
+        "latitude_of_false_origin",
+    ]);
+    let sp = [
+        get(&[
+            "standard_parallel_1",
+            "latitude_of_1st_standard_parallel",
+            "latitude_of_standard_parallel",
+        ]),
+        get(&["standard_parallel_2", "latitude_of_2nd_standard_parallel"]),
+    ];
+    let k0 = get(&["scale_factor", "scale_factor_at_natural_origin"]).unwrap_or(1.0);
+    let false_origin = (
+        get(&["false_easting", "easting_at_false_origin"]).unwrap_or(0.0),
+        get(&["false_northing", "northing_at_false_origin"]).unwrap_or(0.0),
+    );
+    let near = |a: Option<f64>, b: f64| a.is_some_and(|a| (a - b).abs() <= 1e-9 * b.abs().max(1.0));
+    let at = |fe: f64, fn_: f64| near(Some(false_origin.0), fe) && near(Some(false_origin.1), fn_);
+    let parallels = |lat1: f64, lat2: f64| {
+        (near(sp[0], lat1) && near(sp[1], lat2)) || (near(sp[0], lat2) && near(sp[1], lat1))
+    };
+    let stereographic = matches!(
+        method,
+        "stereographic_north_pole"
+            | "stereographic_south_pole"
+            | "polar_stereographic"
+            | "polar_stereographic_variant_a"
+            | "polar_stereographic_variant_b"
+            | "stereographic"
+    );
+    let found = TABLE.iter().find(|e| {
+        e.datum == datum
+            && near(lon0, e.lon0)
+            && match e.method {
+                Method::PolarStereographicB { lat_ts } => {
+                    stereographic
+                        && at(0.0, 0.0)
+                        && near(Some(k0), 1.0)
+                        && (near(sp[0], lat_ts) || (sp[0].is_none() && near(lat0, lat_ts)))
+                }
+                Method::PolarStereographicA {
+                    north,
+                    k0: k,
+                    fe,
+                    fn_,
+                } => {
+                    stereographic
+                        && at(fe, fn_)
+                        && near(Some(k0), k)
+                        && near(lat0, if north { 90.0 } else { -90.0 })
+                }
+                Method::LambertConic {
+                    lat0: l,
+                    lat1,
+                    lat2,
+                    fe,
+                    fn_,
+                } => {
+                    (method.starts_with("lambert_conformal_conic")
+                        || method.starts_with("lambert_conic_conformal"))
+                        && at(fe, fn_)
+                        && near(lat0, l)
+                        && parallels(lat1, lat2)
+                }
+                Method::Albers {
+                    lat0: l,
+                    lat1,
+                    lat2,
+                    fe,
+                    fn_,
+                } => {
+                    method.starts_with("albers")
+                        && at(fe, fn_)
+                        && near(lat0, l)
+                        && parallels(lat1, lat2)
+                }
+                Method::LambertAzimuthal { lat0: l, fe, fn_ } => {
+                    method == "lambert_azimuthal_equal_area" && at(fe, fn_) && near(lat0, l)
+                }
+                Method::TransverseMercator { k0: k, fe } => {
+                    method == "transverse_mercator"
+                        && at(fe, 0.0)
+                        && near(Some(k0), k)
+                        && near(Some(lat0.unwrap_or(0.0)), 0.0)
+                }
+            }
+    });
+    found.map(|e| e.epsg)
+}
+
 /// A CRS of [`TABLE`]: code, name, datum, longitude of origin and method.
 struct Entry {
     epsg: u32,

@@ -302,7 +302,7 @@ pub fn epsg(text: &str) -> Option<u32> {
     horizontal.epsg().or_else(|| {
         let metres = horizontal.metres_per_unit().unwrap_or(1.0);
         is(&horizontal, &PROJECTED)
-            .then(|| utm_code(&horizontal, metres))
+            .then(|| utm_code(&horizontal, metres).or_else(|| grid_code(&horizontal, metres)))
             .flatten()
     })
 }
@@ -357,9 +357,9 @@ fn projected_keys(crs: &Node) -> Result<Vec<(u16, GeoKeyValue)>, String> {
     let metres = crs.metres_per_unit().unwrap_or(1.0);
     let code = match crs.epsg() {
         Some(code) => code,
-        None => utm_code(crs, metres).ok_or_else(|| {
+        None => (utm_code(crs, metres).or_else(|| grid_code(crs, metres))).ok_or_else(|| {
             format!(
-                "CRS \"{}\" names no EPSG code and is not a UTM zone on WGS 84, NAD83 or ETRS89: assign its code, e.g. gdal_edit.py -a_srs EPSG:nnnn",
+                "CRS \"{}\" names no EPSG code and is neither a UTM zone nor a grid dsmstream knows on WGS 84, NAD83 or ETRS89: assign its code, e.g. gdal_edit.py -a_srs EPSG:nnnn",
                 crs.name()
             )
         })?,
@@ -429,8 +429,37 @@ fn utm_code(crs: &Node, metres: f64) -> Option<u32> {
     identify_utm(&GeoKeys { entries })
 }
 
+/// The EPSG code of a national or polar grid written without one (ESRI's
+/// WKT): its method, parameters and datum matched to the grids of
+/// [`crate::geo::proj::identify`].
+fn grid_code(crs: &Node, metres: f64) -> Option<u32> {
+    use crate::geo::tm::Datum;
+    if unit_code(metres) != Some(METRE) {
+        return None;
+    }
+    let conversion = crs.child(&["CONVERSION"]).unwrap_or(crs);
+    let method = (crs.child(&["PROJECTION"]))
+        .or_else(|| conversion.child(&["METHOD"]))?
+        .name();
+    let params: Vec<(String, f64)> = (conversion.children())
+        .filter(|n| is(n, &["PARAMETER"]))
+        .filter_map(|p| Some((normalised(p.name()), p.number(1)?)))
+        .collect();
+    let geographic = crs
+        .child(&GEOGRAPHIC)
+        .or_else(|| crs.child(&["BASEGEOGCRS", "BASEGEODCRS"]))?;
+    let datum = match datum_code(geographic)? {
+        6326 => Datum::Wgs84,
+        6269 => Datum::Nad83,
+        6258 => Datum::Etrs89,
+        _ => return None,
+    };
+    crate::geo::proj::identify(&normalised(method), &params, datum)
+}
+
 /// The EPSG code of a geographic CRS's datum: its own, or by the name GDAL
-/// or ESRI give WGS 84, NAD83 and ETRS89.
+/// or ESRI give WGS 84, NAD83 and ETRS89 (RGF93 and SWEREF99, realisations
+/// of ETRS89, count as ETRS89, as in [`crate::geo::proj`]).
 fn datum_code(geographic: &Node) -> Option<u32> {
     let datum = geographic.child(&["DATUM"])?;
     datum
@@ -439,6 +468,7 @@ fn datum_code(geographic: &Node) -> Option<u32> {
             "wgs_1984" | "world_geodetic_system_1984" => Some(6326),
             "north_american_1983" | "north_american_datum_1983" => Some(6269),
             "etrs_1989" | "european_terrestrial_reference_system_1989" => Some(6258),
+            "rgf_1993" | "reseau_geodesique_francais_1993" | "sweref99" => Some(6258),
             _ => None,
         })
 }

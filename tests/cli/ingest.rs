@@ -570,6 +570,46 @@ fn a_side_file_overriding_the_tags_is_taken_and_said_once() {
     assert_eq!(catalog["dsms"][0]["geotransform"][0], 630010.5);
 }
 
+/// A national grid named by an ESRI `.prj` without a code (ArcGIS writes
+/// them so): xdem's crop without GeoTIFF tags (fixtures/geotiff/wf_real_xdem)
+/// given a world file in ETRS89 / LAEA Europe and the `.prj` PROJ writes for
+/// it (`to_wkt("WKT1_ESRI")`) is identified as EPSG:3035 and makes the
+/// store's CRS; the crops in ETRS89 / UTM 33N are then put into it.
+#[test]
+fn a_grid_named_by_an_esri_prj_is_identified_by_its_parameters() {
+    let tmp = tempfile::tempdir().unwrap();
+    let geotiff = fixtures().join("geotiff");
+    let tif = tmp.path().join("laea.tif");
+    std::fs::copy(geotiff.join("wf_real_xdem.tif"), &tif).unwrap();
+    std::fs::copy(
+        geotiff.join("wf_real_xdem.tif.aux.xml"),
+        tmp.path().join("laea.tif.aux.xml"),
+    )
+    .unwrap();
+    std::fs::write(
+        tmp.path().join("laea.tfw"),
+        "20\n0\n0\n-20\n4444480\n6102630\n",
+    )
+    .unwrap();
+    let esri = r#"PROJCS["ETRS_1989_LAEA",GEOGCS["GCS_ETRS_1989",DATUM["D_ETRS_1989",SPHEROID["GRS_1980",6378137.0,298.257222101]],PRIMEM["Greenwich",0.0],UNIT["Degree",0.0174532925199433]],PROJECTION["Lambert_Azimuthal_Equal_Area"],PARAMETER["False_Easting",4321000.0],PARAMETER["False_Northing",3210000.0],PARAMETER["Central_Meridian",10.0],PARAMETER["Latitude_Of_Origin",52.0],UNIT["Meter",1.0]]"#;
+    std::fs::write(tmp.path().join("laea.prj"), esri).unwrap();
+    let store = tmp.path().join("laea.zarr");
+    let crop = fixture("xdem_gdal/shifted_reprojected_xoff20.0_yoff20.0.tif");
+    let out = ingest(&[&tif, &crop], &store, &[]);
+    assert_ok(&out);
+    let said = text(&out.stdout);
+    assert!(
+        said.contains("georeferenced by laea.tfw, laea.prj")
+            && said.contains(
+                "reprojected from EPSG:25833 to EPSG:3035, ETRS89-extended / LAEA Europe"
+            ),
+        "{said}"
+    );
+    let info = dsmstream(&["info", store.to_str().unwrap(), "--json"]);
+    let catalog: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
+    assert_eq!(catalog["crs"], "EPSG:3035");
+}
+
 /// Side files that cannot be read are refused by name, nothing written: a
 /// `.prj` whose CRS names no EPSG code and is no UTM zone, a world file of
 /// five numbers, an `.aux.xml` that is not XML, a rotated world file.
