@@ -172,11 +172,12 @@ impl ProjectedCrs {
     }
 }
 
-/// The code of the grid of [`TABLE`] that a method and its parameters define
-/// on `datum`, as a WKT without a code names them (ESRI's and GDAL's WKT 1
-/// names, lower case with underscores: "stereographic_north_pole",
-/// "standard_parallel_1"); `None` when none matches within 1e-9.
-pub fn identify(method: &str, params: &[(String, f64)], datum: Datum) -> Option<u32> {
+/// The code of the grid of [`TABLE`] that a method and its parameters define,
+/// as a WKT without a code names them (ESRI's and GDAL's WKT 1 names, lower
+/// case with underscores: "stereographic_north_pole", "standard_parallel_1");
+/// `None` when none matches within 1e-9. The caller has checked that the
+/// datum is WGS 84, NAD83 or ETRS89, which count as one here.
+pub fn identify(method: &str, params: &[(String, f64)]) -> Option<u32> {
     // WKT 2's "polar_stereographic_(variant_b)", "lambert_conic_conformal_(2sp)"
     let method = method.replace(['(', ')'], "");
     let method = method.as_str();
@@ -226,8 +227,7 @@ pub fn identify(method: &str, params: &[(String, f64)], datum: Datum) -> Option<
             | "stereographic"
     );
     let found = TABLE.iter().find(|e| {
-        e.datum == datum
-            && near(lon0, e.lon0)
+        near(lon0, e.lon0)
             && match e.method {
                 Method::PolarStereographicB { lat_ts } => {
                     stereographic

@@ -17,7 +17,70 @@ use crate::geo::Crs;
 /// describe ([`identify_utm`]; stores written before this identification
 /// keep their keys, so it is asked again here).
 pub fn code(crs: &Crs) -> Option<u32> {
-    crs.epsg.or_else(|| identify_utm(&parse(crs)?))
+    crs.epsg.or_else(|| {
+        let keys = parse(crs)?;
+        identify_utm(&keys).or_else(|| identify_grid(&keys))
+    })
+}
+
+/// The EPSG code of a user-defined projected CRS that is one of the national
+/// and polar grids of [`crate::geo::proj`], as GDAL writes one from a PROJ
+/// string (`+proj=stere +lat_0=90 +lat_ts=70 +lon_0=-45 +datum=WGS84`, as
+/// ASP's `--t_srs` takes them): the coordinate transformation's code and
+/// parameters, in metres, on WGS 84, NAD83 or ETRS89, or on an unnamed datum
+/// of their ellipsoid with no shift (`+ellps=GRS80 +towgs84=0,0,0`).
+pub fn identify_grid(keys: &GeoKeys) -> Option<u32> {
+    if keys.short(key::GT_MODEL_TYPE) != Some(MODEL_PROJECTED)
+        || keys
+            .short(key::PROJECTED_CS_TYPE)
+            .is_some_and(|c| c != USER_DEFINED)
+        || keys
+            .short(key::PROJ_LINEAR_UNITS)
+            .is_some_and(|u| u != METRE)
+    {
+        return None;
+    }
+    let doubles = |id| match keys.get(id) {
+        Some(GeoKeyValue::Doubles(d)) => Some(d.clone()),
+        _ => None,
+    };
+    let no_shift = doubles(param::TOWGS84).is_none_or(|d| d.iter().all(|v| *v == 0.0));
+    let ellipsoid = keys.short(param::ELLIPSOID);
+    let semi_major = doubles(param::SEMI_MAJOR).and_then(|d| d.first().copied());
+    let unnamed = keys.short(param::GEODETIC_DATUM) == Some(USER_DEFINED)
+        && (matches!(ellipsoid, Some(7019 | 7030)) || semi_major == Some(6_378_137.0))
+        && no_shift;
+    if keys_datum(keys).is_none() && !unnamed {
+        return None;
+    }
+    let method = match keys.short(key::PROJ_COORD_TRANS)? {
+        1 => "transverse_mercator",
+        8 => "lambert_conformal_conic_2sp",
+        10 => "lambert_azimuthal_equal_area",
+        11 => "albers",
+        15 => "polar_stereographic",
+        _ => return None,
+    };
+    const NAMES: [(u16, &str); 14] = [
+        (3078, "standard_parallel_1"),
+        (3079, "standard_parallel_2"),
+        (3080, "longitude_of_natural_origin"),
+        (3081, "latitude_of_natural_origin"),
+        (3082, "false_easting"),
+        (3083, "false_northing"),
+        (3084, "longitude_of_false_origin"),
+        (3085, "latitude_of_false_origin"),
+        (3086, "easting_at_false_origin"),
+        (3087, "northing_at_false_origin"),
+        (3088, "longitude_of_center"),
+        (3089, "latitude_of_center"),
+        (3092, "scale_factor"),
+        (3095, "longitude_of_origin"),
+    ];
+    let params: Vec<(String, f64)> = (NAMES.iter())
+        .filter_map(|&(id, name)| Some((name.to_string(), *doubles(id)?.first()?)))
+        .collect();
+    crate::geo::proj::identify(method, &params)
 }
 
 /// True when two CRSs without EPSG codes define the same thing ([`same_keys`]);
@@ -43,6 +106,9 @@ mod param {
     pub const FALSE_NORTHING: u16 = 3083;
     pub const SCALE_AT_NAT_ORIGIN: u16 = 3092;
     pub const GEODETIC_DATUM: u16 = 2050;
+    pub const ELLIPSOID: u16 = 2056;
+    pub const SEMI_MAJOR: u16 = 2057;
+    pub const TOWGS84: u16 = 2062;
 }
 
 /// Free-text keys: two descriptions that differ only there are one CRS.
@@ -190,6 +256,35 @@ mod tests {
         ];
         all.extend_from_slice(entries);
         GeoKeys { entries: all }
+    }
+
+    /// NSIDC's polar stereographic north as GDAL writes it from a PROJ
+    /// string (fixtures/geotiff/ud_nsidc_north.tif's keys), with `lat_ts`
+    /// and a datum shift.
+    fn nsidc(lat_ts: f64, towgs84: Option<[f64; 3]>) -> GeoKeys {
+        use GeoKeyValue::{Doubles, Short};
+        let mut entries = vec![
+            (key::GEOGRAPHIC_TYPE, Short(USER_DEFINED)),
+            (param::GEODETIC_DATUM, Short(USER_DEFINED)),
+            (param::ELLIPSOID, Short(7030)),
+            (key::PROJ_COORD_TRANS, Short(15)),
+            (key::PROJ_LINEAR_UNITS, Short(9001)),
+            (param::NAT_ORIGIN_LAT, Doubles(vec![lat_ts])),
+            (param::FALSE_EASTING, Doubles(vec![0.0])),
+            (param::FALSE_NORTHING, Doubles(vec![0.0])),
+            (param::SCALE_AT_NAT_ORIGIN, Doubles(vec![1.0])),
+            (3095, Doubles(vec![-45.0])),
+        ];
+        entries.extend(towgs84.map(|t| (param::TOWGS84, Doubles(t.to_vec()))));
+        keys(&entries)
+    }
+
+    #[test]
+    fn a_polar_grid_as_user_defined_keys_gets_its_code_only_when_exact() {
+        assert_eq!(identify_grid(&nsidc(70.0, None)), Some(3413));
+        assert_eq!(identify_grid(&nsidc(70.0, Some([0.0; 3]))), Some(3413));
+        assert_eq!(identify_grid(&nsidc(71.0, None)), None);
+        assert_eq!(identify_grid(&nsidc(70.0, Some([1.0, 2.0, 3.0]))), None);
     }
 
     fn tm(long: f64, false_northing: f64, geographic: u16) -> GeoKeys {

@@ -433,7 +433,6 @@ fn utm_code(crs: &Node, metres: f64) -> Option<u32> {
 /// WKT): its method, parameters and datum matched to the grids of
 /// [`crate::geo::proj::identify`].
 fn grid_code(crs: &Node, metres: f64) -> Option<u32> {
-    use crate::geo::tm::Datum;
     if unit_code(metres) != Some(METRE) {
         return None;
     }
@@ -448,13 +447,9 @@ fn grid_code(crs: &Node, metres: f64) -> Option<u32> {
     let geographic = crs
         .child(&GEOGRAPHIC)
         .or_else(|| crs.child(&["BASEGEOGCRS", "BASEGEODCRS"]))?;
-    let datum = match datum_code(geographic)? {
-        6326 => Datum::Wgs84,
-        6269 => Datum::Nad83,
-        6258 => Datum::Etrs89,
-        _ => return None,
-    };
-    crate::geo::proj::identify(&normalised(method), &params, datum)
+    // WGS 84, NAD83 or ETRS89 (one datum to the grids)
+    datum_code(geographic).filter(|c| [6326, 6269, 6258].contains(c))?;
+    crate::geo::proj::identify(&normalised(method), &params)
 }
 
 /// The EPSG code of a geographic CRS's datum: its own, or by the name GDAL

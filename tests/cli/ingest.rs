@@ -396,6 +396,48 @@ fn a_dsm_in_feet_is_refused_with_its_unit() {
     assert_ok(&ingest(&[&metres], &store, &[]));
 }
 
+/// A national or polar grid written by GDAL from a PROJ string, as
+/// user-defined GeoTIFF keys without a code (fixtures/geotiff/ud_*.tif,
+/// `tools/scripts/make_user_defined_grids.py`: Lambert-93 on GRS80 with a
+/// zero shift, NSIDC's polar stereographic, Conus Albers), is one collection
+/// with its EPSG twin: neither is reprojected. A DSM in UTM joins the Albers
+/// one's store, put into it.
+#[test]
+fn a_grid_written_as_user_defined_keys_joins_its_epsg_twin() {
+    let tmp = tempfile::tempdir().unwrap();
+    for (file, code, origin) in [
+        ("ud_lambert93.tif", 2154u16, (652_000.0, 6_862_000.0)),
+        ("ud_nsidc_north.tif", 3413, (-200_000.0, -2_000_000.0)),
+        ("ud_conus_albers.tif", 5070, (1_332_000.0, 2_409_700.0)),
+    ] {
+        let crs = dsmstream::geo::Crs {
+            epsg: Some(u32::from(code)),
+            geokeys: vec![1, 1, 0, 3, 1024, 0, 1, 1, 1025, 0, 1, 1, 3072, 0, 1, code],
+            ..Default::default()
+        };
+        let twin = write_with_crs(tmp.path(), &format!("twin_{code}.tif"), crs, origin, 1.0);
+        let store = tmp.path().join(format!("{code}.zarr"));
+        let out = ingest(
+            &[&fixtures().join("geotiff").join(file), &twin],
+            &store,
+            &[],
+        );
+        assert_ok(&out);
+        let said = text(&out.stdout);
+        assert!(!said.contains("reprojected"), "{file}: {said}");
+        if code == 5070 {
+            let utm = fixture("ttp2015/ttp_dsm_source.tif");
+            let out = ingest(&[&utm], &store, &[]);
+            assert_ok(&out);
+            assert!(
+                text(&out.stdout).contains("reprojected from EPSG:26917 to EPSG:5070"),
+                "{}",
+                text(&out.stdout)
+            );
+        }
+    }
+}
+
 /// One UTM zone described two ways, as GDAL writes it (EPSG:32617) and as a
 /// user-defined Transverse Mercator on WGS 84 with its own citation (other
 /// producers), is one collection; a TM one degree off is another CRS.
