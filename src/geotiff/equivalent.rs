@@ -30,14 +30,7 @@ pub fn code(crs: &Crs) -> Option<u32> {
 /// parameters, in metres, on WGS 84, NAD83 or ETRS89, or on an unnamed datum
 /// of their ellipsoid with no shift (`+ellps=GRS80 +towgs84=0,0,0`).
 pub fn identify_grid(keys: &GeoKeys) -> Option<u32> {
-    if keys.short(key::GT_MODEL_TYPE) != Some(MODEL_PROJECTED)
-        || keys
-            .short(key::PROJECTED_CS_TYPE)
-            .is_some_and(|c| c != USER_DEFINED)
-        || keys
-            .short(key::PROJ_LINEAR_UNITS)
-            .is_some_and(|u| u != METRE)
-    {
+    if !user_defined_in_metres(keys) {
         return None;
     }
     let doubles = |id| match keys.get(id) {
@@ -122,20 +115,20 @@ const CITATIONS: [u16; 4] = [
 const MODEL_PROJECTED: u16 = 1;
 const COORD_TRANS_TRANSVERSE_MERCATOR: u16 = 1;
 
+/// A projected CRS the keys define themselves (no code), in metres.
+fn user_defined_in_metres(keys: &GeoKeys) -> bool {
+    keys.short(key::GT_MODEL_TYPE) == Some(MODEL_PROJECTED)
+        && (keys.short(key::PROJECTED_CS_TYPE)).is_none_or(|c| c == USER_DEFINED)
+        && (keys.short(key::PROJ_LINEAR_UNITS)).is_none_or(|u| u == METRE)
+}
+
 /// The EPSG code of a user-defined projected CRS that is a UTM zone on
 /// WGS 84 (326zz / 327zz), NAD83 (269zz, zones 1-23) or ETRS89 (258zz, zones
 /// 28-38): named by the EPSG UTM projection code (16001-16060 north,
 /// 16101-16160 south) or by Transverse Mercator with the zone's parameters.
 /// `None` for anything else, or when the keys give an EPSG code already.
 pub fn identify_utm(keys: &GeoKeys) -> Option<u32> {
-    if keys.short(key::GT_MODEL_TYPE) != Some(MODEL_PROJECTED)
-        || keys
-            .short(key::PROJECTED_CS_TYPE)
-            .is_some_and(|c| c != USER_DEFINED)
-        || keys
-            .short(key::PROJ_LINEAR_UNITS)
-            .is_some_and(|u| u != METRE)
-    {
+    if !user_defined_in_metres(keys) {
         return None;
     }
     let (zone, north) = utm_zone(keys)?;

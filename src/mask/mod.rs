@@ -206,11 +206,7 @@ fn read_geotiff(path: &Path, target: &MaskTarget) -> Result<BitRaster, MaskError
 /// positions exact every 16 cells, as ingest puts DSMs into UTM). A mask that
 /// covers none of the DSMs comes back as one cell over its projected box, for
 /// the caller's message.
-fn in_zone(
-    bits: &BitRaster,
-    into: &crate::store::warp::IntoZone,
-    target: &MaskTarget,
-) -> BitRaster {
+fn in_zone(bits: &BitRaster, into: &crate::store::warp::IntoCrs, target: &MaskTarget) -> BitRaster {
     let (w, h) = (bits.width as u64, bits.height as u64);
     let [e0, n0, e1, n1] = into.bounds(&bits.geotransform, w, h);
     let projected = Bounds::from_corners((e0, n0), (e1, n1));
@@ -300,7 +296,7 @@ fn read_geojson(text: &str, target: &MaskTarget) -> Result<BitRaster, String> {
         polygons = polygons.projected(&projection);
     } else if let (Some(Some(named)), Some(crs)) = (polygons.named_epsg, &target.crs) {
         // polygons in another UTM zone on the datum of the DSMs' zone
-        if let Some(into) = crate::store::warp::zone_into(named, crs) {
+        if let Some(into) = crate::store::warp::crs_into(named, crs) {
             polygons = polygons.mapped(|x, y| into.forward(x, y), MAX_EDGE_M);
         }
     }

@@ -175,8 +175,8 @@ pub fn ingest_with(
         progress.dsm_finished(outcome);
     }
     let paths: Vec<&Path> = todo.iter().map(|(f, _)| f.path.as_path()).collect();
-    let zone = super::warp::choose_zone(attrs.crs.as_ref(), options.target, &paths, open)?;
-    let open = &|path: &Path| super::warp::open_in_zone(open, zone.as_ref(), path);
+    let target = super::warp::choose_target(attrs.crs.as_ref(), options.target, &paths, open)?;
+    let open = &|path: &Path| super::warp::open_in_target(open, target.as_ref(), path);
     validate_all(store_path, &attrs, &todo, open)?;
     if !todo.is_empty() {
         let created = create_store(store_path)?;

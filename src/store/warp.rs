@@ -6,7 +6,7 @@
 //! default transformation between them has it (they differ by 1-2 m, an
 //! offset registration estimates); the line of such a DSM says so.
 //!
-//! One CRS per run ([`choose_zone`]): the CRS `--utm-zone` or `--crs` names,
+//! One CRS per run ([`choose_target`]): the CRS `--utm-zone` or `--crs` names,
 //! else the collection's CRS when [`ProjectedCrs`] knows it (the store's,
 //! else the first projected input's), else the UTM zone of the centre of the
 //! geographic inputs. Each input in degrees or in
@@ -127,7 +127,7 @@ fn known(crs: &Crs) -> Option<ProjectedCrs> {
 /// WGS 84, NAD83 and ETRS89 are taken as one datum here, as PROJ's default
 /// (ballpark) transformation between them does: they differ by 1-2 m, an
 /// offset registration estimates like any other ([`Warped::datum`] says so).
-pub(super) fn choose_zone(
+pub(super) fn choose_target(
     collection: Option<&Crs>,
     forced: Option<CrsChoice>,
     paths: &[&Path],
@@ -203,7 +203,7 @@ fn source_frame(crs: &Crs, target: &ProjectedCrs) -> Option<(Frame, Datum)> {
 /// `open`, with sources in longitude and latitude, or in another known
 /// projected CRS, on `target`'s datum put into `target`; other sources as
 /// they are.
-pub(super) fn open_in_zone(
+pub(super) fn open_in_target(
     open: &SourceOpener,
     target: Option<&ProjectedCrs>,
     path: &Path,
@@ -549,12 +549,12 @@ fn footprint_in(
 /// and masks, which project points and sample rasters without ingesting
 /// them.
 #[derive(Clone, Debug)]
-pub struct IntoZone {
+pub struct IntoCrs {
     projection: Projection,
     frame: Frame,
 }
 
-impl IntoZone {
+impl IntoCrs {
     /// The collection CRS's coordinates of a point of the raster's frame.
     pub fn forward(&self, x: f64, y: f64) -> (f64, f64) {
         let (lon, lat) = self.frame.to_lonlat(x, y);
@@ -590,10 +590,10 @@ impl IntoZone {
 /// How a raster in `crs` is put into `collection`'s CRS: `Some` when
 /// [`ProjectedCrs`] knows `collection` and `crs` is longitude and latitude
 /// (WGS 84, NAD83 or ETRS89) or another known CRS.
-pub fn projection_into(crs: &Crs, collection: &Crs) -> Option<IntoZone> {
+pub fn projection_into(crs: &Crs, collection: &Crs) -> Option<IntoCrs> {
     let target = known(collection)?;
     let (frame, _) = source_frame(crs, &target)?;
-    Some(IntoZone {
+    Some(IntoCrs {
         projection: target.projection,
         frame,
     })
@@ -602,10 +602,10 @@ pub fn projection_into(crs: &Crs, collection: &Crs) -> Option<IntoZone> {
 /// How coordinates of the CRS whose EPSG code is `epsg` are put into
 /// `collection`'s CRS: `Some` when [`ProjectedCrs`] knows both and they
 /// differ (a mask's polygons that name their CRS by code).
-pub fn zone_into(epsg: u32, collection: &Crs) -> Option<IntoZone> {
+pub fn crs_into(epsg: u32, collection: &Crs) -> Option<IntoCrs> {
     let from = ProjectedCrs::from_epsg(epsg)?;
     let target = known(collection)?;
-    (from != target).then_some(IntoZone {
+    (from != target).then_some(IntoCrs {
         projection: target.projection,
         frame: Frame::Projected(from.projection),
     })
